@@ -1,0 +1,154 @@
+"""The ``r2s`` command line: parse, then call the stage. No logic lives here.
+
+Every stage command takes the scene directory and ``--set key=value`` options (listed by
+``--help``); expected errors print one red line and exit non-zero.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Callable, List, Optional
+
+import typer
+
+from r2s.console import console, print_error
+from r2s.errors import R2SError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="r2s: a physically consistent simulation twin of a cluttered tabletop "
+                       "from one RGB-D image and instance masks.")
+
+SET_HELP = "Stage option as key=value (repeatable); see the list below."
+
+
+def _options_epilog(stage_name: str) -> str:
+    from r2s.stages.registry import get_stage
+
+    try:
+        spec = get_stage(stage_name)
+    except ModuleNotFoundError:
+        return ""
+    lines = ["Options for --set:\n\n"]
+    for name, fld in spec.options_type.model_fields.items():
+        default = fld.default
+        lines.append(f"  {name} = {default!r}: {fld.description or ''}\n\n")
+    return "".join(lines)
+
+
+def _parse_sets(sets: Optional[List[str]]) -> dict:
+    out: dict = {}
+    for item in sets or []:
+        if "=" not in item:
+            raise R2SError(f"--set {item!r}: expected key=value")
+        key, value = item.split("=", 1)
+        out[key.strip()] = value.strip()
+    return out
+
+
+def _make_stage_command(stage_name: str, summary: str) -> Callable:
+    def command(
+        scene_dir: Path = typer.Argument(..., help="Scene directory (holds input/)."),
+        set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
+    ) -> None:
+        from r2s.pipeline import run_single_stage
+
+        run_single_stage(scene_dir, stage_name, _parse_sets(set_))
+
+    command.__doc__ = summary
+    command.__name__ = f"cmd_{stage_name}"
+    return command
+
+
+_STAGE_HELP = {
+    "init": "Back-project masks, fit the support plane, register or complete each object.",
+    "graph": "Build the contact graph (support parse tree + proximity edges).",
+    "geomopt": "SDF-based penetration / contact / anchor pose optimisation.",
+    "physopt": "Hierarchical physics-constrained optimisation of pose, COM, mass, friction.",
+    "texture": "Photometric texture refinement with a total-variation prior.",
+    "export": "Write export/ (scene.json, meshes, convex collision pieces, URDFs).",
+    "evaluate": "Re-simulate export/ in PyBullet; stability, geometry and rendering metrics.",
+    "diagnose": "Trace residuals to missing model effects; report error before and after.",
+}
+
+for _name, _summary in _STAGE_HELP.items():
+    app.command(name=_name, help=_summary, epilog=None)(_make_stage_command(_name, _summary))
+
+
+@app.command()
+def run(
+    scene_dir: Path = typer.Argument(..., help="Scene directory (holds input/)."),
+    force: bool = typer.Option(False, "--force", help="Rerun every stage."),
+    until: Optional[str] = typer.Option(None, help="Stop after this stage."),
+    skip: Optional[List[str]] = typer.Option(None, help="Stage to leave out (repeatable)."),
+    set_: Optional[List[str]] = typer.Option(None, "--set",
+                                             help="stage.key=value option (repeatable)."),
+) -> None:
+    """Run every stage whose inputs or options changed, and skip the rest."""
+    from r2s.pipeline import run_pipeline
+
+    run_pipeline(scene_dir, force=force, until=until, skip=list(skip or []),
+                 overrides=_parse_sets(set_))
+
+
+@app.command()
+def synth(
+    out_dir: Path = typer.Argument(..., help="Scene directory to create."),
+    objects: str = typer.Option("ycb", help="Object set: ycb, pybullet, or mixed."),
+    count: int = typer.Option(6, help="Number of objects (4-15)."),
+    seed: int = typer.Option(0, help="Random seed."),
+    noise: float = typer.Option(1.0, help="Depth noise level (0 = perfect depth)."),
+    effect: Optional[List[str]] = typer.Option(None, help="Injected effect NAME=VALUE "
+                                               "(repeatable); recorded only in gt/."),
+    width: int = typer.Option(640, help="Image width in pixels."),
+    height: int = typer.Option(480, help="Image height in pixels."),
+) -> None:
+    """Make a benchmark scene: settled clutter, rendered RGB-D and masks, priors, gt/."""
+    from r2s.synth.generate import SynthOptions, synthesize
+
+    opts = SynthOptions(objects=objects, count=count, seed=seed, noise=noise,
+                        effects=_parse_sets(effect), width=width, height=height)
+    from r2s.console import stage_progress
+
+    with stage_progress("synth") as progress:
+        summary = synthesize(out_dir, opts, progress=progress)
+    console.print(f"[green]wrote[/green] {out_dir} ({summary.get('objects', '?')} objects)")
+
+
+@app.command()
+def report(
+    scene_dirs: List[Path] = typer.Argument(..., help="Scene directories with evaluate/metrics.json."),
+    out: Optional[Path] = typer.Option(None, help="Also write the table as markdown here."),
+    label: str = typer.Option("r2s", help="Row label for the markdown table."),
+) -> None:
+    """Aggregate evaluate/metrics.json of many scenes into one table."""
+    from r2s.batch import aggregate_metrics
+
+    aggregate_metrics(scene_dirs, out=out, label=label)
+
+
+def main() -> None:
+    """Console-script entry point: expected errors become one red line and an exit code."""
+    try:
+        app(standalone_mode=False)
+    except R2SError as exc:
+        print_error(str(exc))
+        sys.exit(exc.exit_code)
+    except KeyboardInterrupt:
+        print_error("interrupted; the previous results are intact")
+        sys.exit(130)
+    except SystemExit:
+        raise
+    except Exception as exc:  # click usage errors arrive here in non-standalone mode
+        import click
+
+        if isinstance(exc, click.exceptions.ClickException):
+            exc.show()
+            sys.exit(exc.exit_code)
+        if isinstance(exc, click.exceptions.Abort):
+            sys.exit(1)
+        raise
+
+
+if __name__ == "__main__":
+    main()

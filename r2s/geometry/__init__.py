@@ -1,0 +1,1 @@
+"""Geometry as free functions on numpy arrays (one module per topic)."""

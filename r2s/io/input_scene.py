@@ -1,0 +1,337 @@
+"""Load and validate a scene's ``input/`` folder (SCENE_FORMAT.md).
+
+Every problem raises :class:`r2s.errors.InputError` naming the file and what is wrong.
+Nothing here writes anything.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+from PIL import Image
+from pydantic import BaseModel, ConfigDict, ValidationError, field_validator, model_validator
+
+from r2s.errors import InputError
+from r2s.io.paths import ScenePaths
+
+MIN_MASK_PIXELS = 20
+"""An instance with fewer visible pixels than this is reported as an empty mask."""
+
+
+def _check_matrix(value: list, rows: int, cols: int, name: str) -> list:
+    arr = np.asarray(value, dtype=float)
+    if arr.shape != (rows, cols):
+        raise ValueError(f"{name} must be {rows}x{cols}, got shape {list(arr.shape)}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} has non-finite entries")
+    return value
+
+
+def _check_rigid(value: list, name: str) -> list:
+    arr = np.asarray(_check_matrix(value, 4, 4, name), dtype=float)
+    rot = arr[:3, :3]
+    if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-3) or np.linalg.det(rot) < 0:
+        raise ValueError(f"{name} rotation part is not a proper rotation")
+    if not np.allclose(arr[3], [0, 0, 0, 1], atol=1e-6):
+        raise ValueError(f"{name} last row must be [0, 0, 0, 1]")
+    return value
+
+
+class CameraFile(BaseModel):
+    """``input/camera.json``."""
+
+    model_config = ConfigDict(extra="allow")
+
+    width: int
+    height: int
+    K: list[list[float]]
+    world_from_camera: list[list[float]]
+    depth_unit_m: float = 0.001
+
+    @field_validator("width", "height")
+    @classmethod
+    def _positive(cls, v: int) -> int:
+        if v <= 0:
+            raise ValueError("must be positive")
+        return v
+
+    @field_validator("K")
+    @classmethod
+    def _k(cls, v: list) -> list:
+        _check_matrix(v, 3, 3, "K")
+        k = np.asarray(v)
+        if k[0, 0] <= 0 or k[1, 1] <= 0:
+            raise ValueError("K focal lengths must be positive")
+        return v
+
+    @field_validator("world_from_camera")
+    @classmethod
+    def _pose(cls, v: list) -> list:
+        return _check_rigid(v, "world_from_camera")
+
+    @field_validator("depth_unit_m")
+    @classmethod
+    def _unit(cls, v: float) -> float:
+        if not (v > 0 and np.isfinite(v)):
+            raise ValueError("depth_unit_m must be positive")
+        return v
+
+
+class ObjectEntry(BaseModel):
+    """One entry of ``input/objects.json``."""
+
+    model_config = ConfigDict(extra="allow")
+
+    id: int
+    label: Optional[str] = None
+    prior_mesh: Optional[str] = None
+    world_from_prior: Optional[list[list[float]]] = None
+
+    @field_validator("id")
+    @classmethod
+    def _id(cls, v: int) -> int:
+        if v <= 0:
+            raise ValueError("instance ids must be positive integers")
+        return v
+
+    @field_validator("world_from_prior")
+    @classmethod
+    def _pose(cls, v: Optional[list]) -> Optional[list]:
+        return None if v is None else _check_rigid(v, "world_from_prior")
+
+
+class ObjectsFile(BaseModel):
+    """``input/objects.json``."""
+
+    model_config = ConfigDict(extra="allow")
+
+    objects: list[ObjectEntry] = []
+
+    @model_validator(mode="after")
+    def _unique(self) -> "ObjectsFile":
+        ids = [o.id for o in self.objects]
+        if len(ids) != len(set(ids)):
+            raise ValueError("duplicate object ids")
+        return self
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera.
+
+    Attributes
+    ----------
+    K : (3, 3) float intrinsics, pixels.
+    world_from_camera : (4, 4) float, OpenCV camera frame (x right, y down, z forward) to world.
+    width, height : image size in pixels.
+    """
+
+    K: np.ndarray
+    world_from_camera: np.ndarray
+    width: int
+    height: int
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """What ``input/`` says about one instance.
+
+    ``prior_mesh`` is an absolute path or None; ``world_from_prior`` is (4, 4) or None.
+    """
+
+    id: int
+    label: str
+    prior_mesh: Optional[Path] = None
+    world_from_prior: Optional[np.ndarray] = None
+
+
+@dataclass(frozen=True)
+class InputScene:
+    """A validated ``input/`` folder.
+
+    Attributes
+    ----------
+    rgb : (H, W, 3) uint8.
+    depth_m : (H, W) float32 metres along the camera z axis; NaN where there is no reading.
+    masks : (H, W) int32 instance ids, 0 = no object.
+    camera : :class:`Camera`.
+    objects : one :class:`ObjectSpec` per instance id present in ``masks``, sorted by id.
+    """
+
+    rgb: np.ndarray
+    depth_m: np.ndarray
+    masks: np.ndarray
+    camera: Camera
+    objects: list[ObjectSpec] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def ids(self) -> list[int]:
+        return [o.id for o in self.objects]
+
+    def object(self, obj_id: int) -> ObjectSpec:
+        for o in self.objects:
+            if o.id == obj_id:
+                return o
+        raise KeyError(obj_id)
+
+
+def _first_error(exc: ValidationError) -> str:
+    err = exc.errors()[0]
+    loc = ".".join(str(p) for p in err.get("loc", ()))
+    msg = err.get("msg", "invalid").removeprefix("Value error, ")
+    return f"{loc}: {msg}" if loc else msg
+
+
+def read_json_file(path: Path) -> object:
+    """Parse a JSON file or raise :class:`InputError` with the line of the syntax error."""
+    if not path.is_file():
+        raise InputError(path, "missing file")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise InputError(path, f"bad JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+    except UnicodeDecodeError:
+        raise InputError(path, "not a UTF-8 text file") from None
+
+
+def load_camera(path: Path) -> tuple[Camera, float]:
+    """The camera and its ``depth_unit_m``."""
+    data = read_json_file(path)
+    try:
+        cam = CameraFile.model_validate(data)
+    except ValidationError as exc:
+        raise InputError(path, _first_error(exc)) from None
+    return Camera(
+        K=np.asarray(cam.K, dtype=np.float64),
+        world_from_camera=np.asarray(cam.world_from_camera, dtype=np.float64),
+        width=cam.width,
+        height=cam.height,
+    ), cam.depth_unit_m
+
+
+def _read_image(path: Path) -> Image.Image:
+    if not path.is_file():
+        raise InputError(path, "missing file")
+    try:
+        img = Image.open(path)
+        img.load()
+    except Exception:  # PIL raises many types for corrupt files
+        raise InputError(path, "unreadable image") from None
+    return img
+
+
+def load_rgb(path: Path, width: int, height: int) -> np.ndarray:
+    img = _read_image(path)
+    if img.mode not in ("RGB", "RGBA", "L", "P"):
+        raise InputError(path, f"expected an 8-bit RGB image, got mode {img.mode}")
+    arr = np.asarray(img.convert("RGB"))
+    _check_size(path, arr, width, height)
+    return arr
+
+
+def _check_size(path: Path, arr: np.ndarray, width: int, height: int) -> None:
+    if arr.shape[:2] != (height, width):
+        raise InputError(
+            path, f"wrong size {arr.shape[1]}x{arr.shape[0]}, camera.json says {width}x{height}"
+        )
+
+
+def load_depth(paths: ScenePaths, width: int, height: int, depth_unit_m: float) -> np.ndarray:
+    """Depth in metres, float32 (H, W), NaN where invalid."""
+    if paths.depth_npy.is_file():
+        path = paths.depth_npy
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except Exception:
+            raise InputError(path, "unreadable .npy file") from None
+        if arr.ndim != 2:
+            raise InputError(path, f"expected a 2-D H x W array, got shape {list(arr.shape)}")
+        if arr.dtype.kind not in "fiu":
+            raise InputError(path, f"expected float32 metres, got dtype {arr.dtype}")
+        depth = arr.astype(np.float32)
+    elif paths.depth_png.is_file():
+        path = paths.depth_png
+        img = _read_image(path)
+        arr = np.asarray(img)
+        if arr.ndim != 2 or arr.dtype not in (np.uint16, np.int32, np.uint8):
+            raise InputError(path, f"expected a 16-bit single-channel PNG, got mode {img.mode}")
+        depth = arr.astype(np.float32) * np.float32(depth_unit_m)
+    else:
+        raise InputError(paths.depth_png, "missing file (neither depth.png nor depth.npy exists)")
+    _check_size(path, depth, width, height)
+    depth[~np.isfinite(depth) | (depth <= 0)] = np.nan
+    if np.isnan(depth).all():
+        raise InputError(path, "no valid depth reading (all zero, NaN or inf)")
+    return depth
+
+
+def load_masks(path: Path, width: int, height: int) -> np.ndarray:
+    img = _read_image(path)
+    arr = np.asarray(img)
+    if arr.ndim != 2:
+        raise InputError(path, f"expected a single-channel 8- or 16-bit image, got mode {img.mode}")
+    _check_size(path, arr, width, height)
+    masks = arr.astype(np.int32)
+    if not (masks > 0).any():
+        raise InputError(path, "no instance in the mask (every pixel is 0)")
+    return masks
+
+
+def load_objects(paths: ScenePaths) -> dict[int, ObjectEntry]:
+    if not paths.objects.exists():
+        return {}
+    data = read_json_file(paths.objects)
+    try:
+        parsed = ObjectsFile.model_validate(data)
+    except ValidationError as exc:
+        raise InputError(paths.objects, _first_error(exc)) from None
+    return {o.id: o for o in parsed.objects}
+
+
+def load_input(scene_dir: Path) -> InputScene:
+    """Load and validate ``scene_dir/input``; raise :class:`InputError` on the first problem."""
+    paths = ScenePaths(Path(scene_dir))
+    if not paths.root.is_dir():
+        raise InputError(paths.root, "scene directory does not exist")
+    if not paths.input.is_dir():
+        raise InputError(paths.input, "missing folder (a scene needs input/)")
+    camera, depth_unit_m = load_camera(paths.camera)
+    w, h = camera.width, camera.height
+    rgb = load_rgb(paths.rgb, w, h)
+    depth = load_depth(paths, w, h, depth_unit_m)
+    masks = load_masks(paths.masks, w, h)
+    entries = load_objects(paths)
+
+    ids = sorted(int(i) for i in np.unique(masks) if i > 0)
+    objects: list[ObjectSpec] = []
+    for obj_id in ids:
+        visible = (masks == obj_id) & np.isfinite(depth)
+        if int(visible.sum()) < MIN_MASK_PIXELS:
+            raise InputError(
+                paths.masks,
+                f"instance {obj_id} has only {int(visible.sum())} pixels with valid depth "
+                f"(need {MIN_MASK_PIXELS})",
+            )
+        entry = entries.get(obj_id)
+        prior, pose, label = None, None, f"object_{obj_id}"
+        if entry is not None:
+            label = entry.label or label
+            if entry.prior_mesh:
+                prior = (paths.input / entry.prior_mesh).resolve()
+                if not prior.is_file():
+                    raise InputError(paths.input / entry.prior_mesh,
+                                     f"missing prior mesh of object {obj_id}")
+            if entry.world_from_prior is not None:
+                pose = np.asarray(entry.world_from_prior, dtype=np.float64)
+        objects.append(ObjectSpec(id=obj_id, label=label, prior_mesh=prior, world_from_prior=pose))
+    warnings = [
+        f"{paths.objects}: object {i} does not appear in masks.png and is skipped"
+        for i in sorted(set(entries) - set(ids))
+    ]
+    return InputScene(rgb=rgb, depth_m=depth, masks=masks, camera=camera, objects=objects,
+                      warnings=warnings)

@@ -1,0 +1,110 @@
+"""Every path of a scene directory, declared once.
+
+Layout (``input/``, ``gt/``, ``export/`` are the fixed contract of SCENE_FORMAT.md; the
+rest is r2s's own, one folder per stage)::
+
+    SCENE/
+      input/            user data, never modified
+      gt/               benchmark ground truth, never read by reconstruction stages
+      init/             state.json, meshes/<id>.glb, points/<id>.npy, init.png
+      graph/            contact_graph.json, contact_graph.png
+      geomopt/          state.json, meshes/, sdf/<id>.npy + <id>.json, loss.json
+      physopt/          state.json, meshes/, log.json
+      texture/          state.json, meshes/<id>.glb (textured)
+      export/           scene.json, meshes/, collision/, urdf/
+      evaluate/         metrics.json, rollout.png
+      diagnose/         report.json, report.md, plots
+      manifest.json     per stage: options, input/output hashes, timing, status
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+STAGE_NAMES: tuple[str, ...] = (
+    "init", "graph", "geomopt", "physopt", "texture", "export", "evaluate",
+)
+"""Pipeline order of the stages that ``r2s run`` drives. ``diagnose`` is run on demand."""
+
+STATE_STAGES: tuple[str, ...] = ("init", "geomopt", "physopt", "texture")
+"""Stages that write a :class:`r2s.io.state.SceneState` (poses, meshes, physics)."""
+
+
+@dataclass(frozen=True)
+class ScenePaths:
+    """Paths inside one scene directory."""
+
+    root: Path
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "root", Path(self.root).resolve())
+
+    # ---- fixed contract -------------------------------------------------------------
+    @property
+    def input(self) -> Path:
+        return self.root / "input"
+
+    @property
+    def rgb(self) -> Path:
+        return self.input / "rgb.png"
+
+    @property
+    def depth_png(self) -> Path:
+        return self.input / "depth.png"
+
+    @property
+    def depth_npy(self) -> Path:
+        return self.input / "depth.npy"
+
+    @property
+    def masks(self) -> Path:
+        return self.input / "masks.png"
+
+    @property
+    def camera(self) -> Path:
+        return self.input / "camera.json"
+
+    @property
+    def objects(self) -> Path:
+        return self.input / "objects.json"
+
+    @property
+    def interaction(self) -> Path:
+        return self.input / "interaction"
+
+    @property
+    def gt(self) -> Path:
+        return self.root / "gt"
+
+    @property
+    def gt_scene(self) -> Path:
+        return self.gt / "scene.json"
+
+    @property
+    def export(self) -> Path:
+        return self.root / "export"
+
+    @property
+    def export_scene(self) -> Path:
+        return self.export / "scene.json"
+
+    # ---- r2s's own ----------------------------------------------------------------
+    @property
+    def manifest(self) -> Path:
+        return self.root / "manifest.json"
+
+    def stage_dir(self, stage: str) -> Path:
+        return self.root / stage
+
+    def state(self, stage: str) -> Path:
+        """``<stage>/state.json`` of a state-writing stage."""
+        return self.stage_dir(stage) / "state.json"
+
+    @property
+    def contact_graph(self) -> Path:
+        return self.stage_dir("graph") / "contact_graph.json"
+
+    @property
+    def metrics(self) -> Path:
+        return self.stage_dir("evaluate") / "metrics.json"
