@@ -1,0 +1,141 @@
+"""Support plane: robust plane fit (RANSAC + least squares) and the plane's own frame.
+
+The support plane of a tabletop scene is the largest plane among the depth pixels that
+belong to no object (mask 0). Its normal is oriented "up": towards a given viewpoint (the
+camera sees the top of the table) or, without one, along an up hint (world +z).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class PlaneFit:
+    """A fitted plane ``normal . (x - point) = 0``.
+
+    Attributes
+    ----------
+    point : (3,) a point on the plane (the centroid of the inliers), world frame.
+    normal : (3,) unit normal, oriented up.
+    inliers : (N,) bool, which input points are within the threshold of the plane.
+    """
+
+    point: np.ndarray
+    normal: np.ndarray
+    inliers: np.ndarray
+
+    @property
+    def offset_m(self) -> float:
+        """``d`` of the plane equation ``normal . x = d``."""
+        return float(self.normal @ self.point)
+
+
+def signed_distance(points: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """(N,) signed distance of (N, 3) points to the plane, positive on the normal's side."""
+    n = np.asarray(normal, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    return (np.asarray(points, dtype=np.float64) - np.asarray(point, dtype=np.float64)) @ n
+
+
+def _least_squares_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    centroid = points.mean(axis=0)
+    _, _, vt = np.linalg.svd(points - centroid, full_matrices=False)
+    return centroid, vt[2]
+
+
+def _orient(normal: np.ndarray, point: np.ndarray, up_hint: np.ndarray | None,
+            viewpoint: np.ndarray | None) -> np.ndarray:
+    if viewpoint is not None:
+        ref = np.asarray(viewpoint, dtype=np.float64) - point
+    else:
+        ref = np.asarray(up_hint if up_hint is not None else (0.0, 0.0, 1.0), dtype=np.float64)
+    return -normal if normal @ ref < 0 else normal
+
+
+def fit_plane_ransac(points: np.ndarray, threshold_m: float = 0.005, iterations: int = 500,
+                     seed: int = 0, up_hint: np.ndarray | None = None,
+                     viewpoint: np.ndarray | None = None,
+                     max_tilt_deg: float | None = None, refine_rounds: int = 3) -> PlaneFit:
+    """Fit the plane holding the most points, robust to outliers.
+
+    Parameters
+    ----------
+    points : (N, 3) points, N >= 3.
+    threshold_m : inlier distance.
+    iterations : RANSAC samples (3 points each).
+    seed : random seed (the result is deterministic per seed).
+    up_hint : (3,) direction the normal should point along; default world +z.
+    viewpoint : (3,) a point above the plane (the camera centre); when given it decides
+        the orientation instead of ``up_hint``.
+    max_tilt_deg : when given, only planes whose normal is within this angle of
+        ``up_hint`` (default +z) are considered (a wall is not a table).
+    refine_rounds : least-squares refits on the inliers after RANSAC.
+
+    Returns
+    -------
+    :class:`PlaneFit`; ``ValueError`` when fewer than 3 points or no plane is found.
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    pts_finite = np.all(np.isfinite(pts), axis=1)
+    if pts_finite.sum() < 3:
+        raise ValueError("a plane needs at least 3 finite points")
+    rng = np.random.default_rng(seed)
+    idx_finite = np.flatnonzero(pts_finite)
+    p = pts[idx_finite]
+    hint = np.asarray(up_hint if up_hint is not None else (0.0, 0.0, 1.0), dtype=np.float64)
+    hint = hint / np.linalg.norm(hint)
+    cos_tilt = None if max_tilt_deg is None else np.cos(np.radians(max_tilt_deg))
+
+    # score hypotheses on a subsample for speed; the final inlier set uses every point
+    score_idx = rng.choice(len(p), size=min(len(p), 20000), replace=False)
+    q = p[score_idx]
+    samples = rng.integers(0, len(p), size=(iterations, 3))
+    a, b, c = p[samples[:, 0]], p[samples[:, 1]], p[samples[:, 2]]
+    normals = np.cross(b - a, c - a)
+    norms = np.linalg.norm(normals, axis=1)
+    ok = norms > 1e-12
+    normals[ok] /= norms[ok, None]
+    if cos_tilt is not None:
+        ok &= np.abs(normals @ hint) >= cos_tilt
+    if not ok.any():
+        raise ValueError("no plane hypothesis satisfies the constraints")
+    best_count, best = -1, None
+    for i in np.flatnonzero(ok):
+        count = int(np.count_nonzero(np.abs((q - a[i]) @ normals[i]) < threshold_m))
+        if count > best_count:
+            best_count, best = count, i
+    normal, point = normals[best], a[best]
+
+    for _ in range(max(refine_rounds, 1)):
+        inl = np.abs((p - point) @ normal) < threshold_m
+        if inl.sum() < 3:
+            break
+        point, normal = _least_squares_plane(p[inl])
+    normal = _orient(normal / np.linalg.norm(normal), point, hint, viewpoint)
+    inliers = np.zeros(len(pts), dtype=bool)
+    inliers[idx_finite] = np.abs((p - point) @ normal) < threshold_m
+    return PlaneFit(point=point, normal=normal, inliers=inliers)
+
+
+def world_from_plane(point: np.ndarray, normal: np.ndarray,
+                     x_hint: np.ndarray | None = None) -> np.ndarray:
+    """(4, 4) a frame on the plane: origin ``point``, z = ``normal``.
+
+    The x axis is ``x_hint`` (default world +x, or +y when +x is nearly normal) projected
+    onto the plane, so the frame is deterministic.
+    """
+    z = np.asarray(normal, dtype=np.float64)
+    z = z / np.linalg.norm(z)
+    hint = np.asarray(x_hint if x_hint is not None else (1.0, 0.0, 0.0), dtype=np.float64)
+    x = hint - (hint @ z) * z
+    if np.linalg.norm(x) < 1e-6:
+        hint = np.array([0.0, 1.0, 0.0])
+        x = hint - (hint @ z) * z
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    out = np.eye(4)
+    out[:3, 0], out[:3, 1], out[:3, 2], out[:3, 3] = x, y, z, point
+    return out

@@ -1,0 +1,89 @@
+"""Write ``export/`` exactly as SCENE_FORMAT.md says, plus one URDF per object.
+
+Layout (paths in scene.json relative to ``export/``)::
+
+    export/scene.json
+    export/meshes/<id>.glb          visual mesh, object frame (colours/texture kept)
+    export/meshes/<id>.obj          the same shape as OBJ (for URDF visuals)
+    export/collision/<id>_<k>.obj   convex pieces, object frame
+    export/urdf/<id>.urdf           single-link URDF with explicit inertia
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import trimesh
+
+from r2s.io.atomic import atomic_write_json, atomic_write_text
+from r2s.io.mesh_io import save_mesh
+from r2s.io.urdf import urdf_text
+
+
+@dataclass
+class ExportBody:
+    """Everything export writes for one object (object frame, SI units).
+
+    collision_pieces : convex meshes; world_from_object : (4, 4); com_in_object : (3,);
+    inertia_about_com : (3, 3); extra : additional keys for scene.json (e.g. "source").
+    """
+
+    id: int
+    label: str
+    visual_mesh: trimesh.Trimesh
+    collision_pieces: Sequence[trimesh.Trimesh]
+    world_from_object: np.ndarray
+    mass_kg: float
+    com_in_object: np.ndarray
+    inertia_about_com: np.ndarray
+    friction: float
+    restitution: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def write_export(out_dir: Path, gravity: Sequence[float], support: dict,
+                 bodies: Sequence[ExportBody]) -> dict:
+    """Write the export folder into ``out_dir``; returns the scene.json content."""
+    out_dir = Path(out_dir)
+    objects = []
+    for body in bodies:
+        visual_rel = f"meshes/{body.id}.glb"
+        save_mesh(body.visual_mesh, out_dir / visual_rel)
+        save_mesh(body.visual_mesh, out_dir / f"meshes/{body.id}.obj")
+        collision_rel = []
+        for k, piece in enumerate(body.collision_pieces):
+            rel = f"collision/{body.id}_{k}.obj"
+            save_mesh(piece, out_dir / rel)
+            collision_rel.append(rel)
+        atomic_write_text(
+            out_dir / f"urdf/{body.id}.urdf",
+            urdf_text(f"object_{body.id}", f"../meshes/{body.id}.obj",
+                      [f"../{r}" for r in collision_rel], body.mass_kg, body.com_in_object,
+                      body.inertia_about_com, body.friction, body.restitution),
+        )
+        entry = {
+            "id": int(body.id),
+            "label": body.label,
+            "visual_mesh": visual_rel,
+            "collision_meshes": collision_rel,
+            "urdf": f"urdf/{body.id}.urdf",
+            "world_from_object": np.asarray(body.world_from_object, dtype=float).tolist(),
+            "mass_kg": float(body.mass_kg),
+            "com_in_object": [float(x) for x in body.com_in_object],
+            "friction": float(body.friction),
+            "restitution": float(body.restitution),
+        }
+        entry.update(body.extra)
+        objects.append(entry)
+    scene = {
+        "format": "r2s-scene",
+        "version": 1,
+        "gravity": [float(g) for g in gravity],
+        "support": support,
+        "objects": objects,
+    }
+    atomic_write_json(out_dir / "scene.json", scene)
+    return scene

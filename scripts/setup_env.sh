@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# One-time setup of a fresh machine: the Debian libraries the Python packages need, then a
+# virtual environment with r2s installed in editable mode. Safe to rerun.
+set -euo pipefail
+VENV="${1:-.venv}"
+PYTHON="${PYTHON:-python3}"
+
+# Debian packages: open3d's import needs libusb; pyrender renders headless via OSMesa or EGL.
+need=()
+for pkg in libusb-1.0-0 libgl1 libegl1 libosmesa6; do
+  dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
+done
+if [ ${#need[@]} -gt 0 ]; then
+  if command -v apt-get >/dev/null 2>&1; then
+    SUDO=""
+    [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null 2>&1 && SUDO="sudo"
+    echo "installing Debian packages: ${need[*]}"
+    $SUDO apt-get update -qq || true
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq "${need[@]}" || \
+      echo "warning: could not install ${need[*]}; rendering features may be unavailable" >&2
+  else
+    echo "warning: apt-get not found; please install ${need[*]}" >&2
+  fi
+fi
+
+if [ ! -x "$VENV/bin/python" ]; then
+  "$PYTHON" -m venv "$VENV"
+fi
+"$VENV/bin/python" -m pip install -q --upgrade pip
+# torch first and pinned: 2.13.0 is a CPU build available offline; anything else pulls CUDA.
+"$VENV/bin/python" -m pip install -q "torch==2.13.0"
+"$VENV/bin/python" -m pip install -q -e ".[test]"
+"$VENV/bin/python" -c "import r2s, torch, open3d, pybullet, trimesh, coacd; print('r2s environment ready')"
