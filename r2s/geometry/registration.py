@@ -287,21 +287,27 @@ def _global_candidates(model: _Model, mesh: trimesh.Trimesh, obs: np.ndarray,
     centroid = obs.mean(axis=0)
     view = centroid - viewpoint if viewpoint is not None else -np.asarray(up, dtype=np.float64)
     view = view / np.linalg.norm(view)
-    coarse_obs = _subsample(obs, 400, opts.seed)
-    schedule = tuple(m for m in opts.max_correspondence_m[:2]) or (0.02,)
-    scored = []
     coarse = replace(opts, estimate_scale=False, trim_fraction=max(opts.trim_fraction, 0.2))
+    sims = []
     for rot in rots:
         # model centre behind the visible surface by half the model radius
         centre_w = centroid + view * 0.5 * model.radius
         world_from_obj = np.eye(4)
         world_from_obj[:3, :3] = rot
         world_from_obj[:3, 3] = centre_w - rot @ model.center
-        sim = _icp(model, coarse_obs, _Similarity.from_pose(world_from_obj, 1.0), viewpoint,
-                   coarse, schedule, 10)
-        scored.append((_evaluate(model, coarse_obs, sim, viewpoint, opts)[2], sim))
-    scored.sort(key=lambda s: s[0])
-    return [s for _, s in scored[: max(opts.global_keep, 1)]]
+        sims.append(_Similarity.from_pose(world_from_obj, 1.0))
+    # successive halving: short ICPs on few points, the better half goes on with more
+    levels = opts.max_correspondence_m[:2] or (0.02,)
+    rounds = [(150, levels[0], 6), (300, levels[-1], 8), (600, levels[-1], 8)]
+    for round_i, (n_points, level_m, iters) in enumerate(rounds):
+        sub = _subsample(obs, n_points, opts.seed + round_i)
+        sims = [_icp(model, sub, s, viewpoint, coarse, (level_m,), iters) for s in sims]
+        scores = [_evaluate(model, sub, s, viewpoint, opts)[2] for s in sims]
+        order = np.argsort(scores, kind="stable")
+        keep = max(opts.global_keep, len(sims) // 4) if round_i < len(rounds) - 1 \
+            else opts.global_keep
+        sims = [sims[i] for i in order[:max(keep, 1)]]
+    return sims
 
 
 def register_prior(mesh: trimesh.Trimesh, observed_points: np.ndarray,

@@ -1,0 +1,1 @@
+"""Differentiable rigid-body simulator (torch) for the physics-constrained optimisation."""
