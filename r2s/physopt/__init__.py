@@ -1,0 +1,1 @@
+"""Hierarchical physics-constrained optimisation (the physopt stage's building blocks)."""

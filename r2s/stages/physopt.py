@@ -1,0 +1,205 @@
+"""The ``physopt`` stage: make the reconstructed scene stay at rest in simulation.
+
+Objects are processed root to leaves along the contact graph (parents fixed while a child
+is optimised). Each object's pose, COM (kept inside the shape), mass (bounded around
+volume x density) and friction (bounded to a plausible range) are optimised through the
+differentiable simulator where it is available; then a verification pass re-simulates the
+whole scene in PyBullet with the export's collision geometry, and objects that still move
+are revisited with their neighbours (more friction within bounds, then letting the engine
+settle them into the nearest rest state) until the scene is stable or the budget runs out.
+Every change is recorded per object with its reason in ``physopt/log.json``.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Literal, Optional
+
+import numpy as np
+from pydantic import Field
+
+from r2s.geometry.convex_cache import cached_convex_decomposition
+from r2s.geometry.mass_properties import mass_properties
+from r2s.io.atomic import atomic_write_json
+from r2s.io.mesh_io import load_mesh
+from r2s.io.paths import ScenePaths
+from r2s.io.state import SceneState, read_state, write_state
+from r2s.physopt.hierarchy import order_root_to_leaves, parents_from_graph
+from r2s.physopt.pybullet_world import SimBody, build_world, depenetrate, drift, settle
+from r2s.stages.base import StageContext, StageOptions, StageSpec
+from r2s.stages.manifest import Manifest
+from r2s.stages.select import latest_state_stage
+
+
+class Options(StageOptions):
+    source: Literal["auto", "init", "geomopt"] = Field(
+        "auto", description="State to start from (auto: geomopt if it ran, else init).")
+    density_kg_m3: float = Field(600.0, gt=0, description="Nominal density for the mass prior.")
+    mass_bounds: tuple[float, float] = Field(
+        (0.5, 2.0), description="Mass bounds as factors of volume x density.")
+    friction_bounds: tuple[float, float] = Field(
+        (0.2, 1.0), description="Per-body friction bounds (PyBullet multiplies two bodies').")
+    friction_init: float = Field(0.6, description="Starting per-body friction.")
+    support_friction: float = Field(0.9, gt=0, description="Friction of the support plane.")
+    verify_duration_s: float = Field(3.0, gt=0, description="Rollout length of the check.")
+    tolerance_m: float = Field(0.005, gt=0, description="Largest COM motion counted as at rest.")
+    tolerance_deg: float = Field(2.0, gt=0, description="Largest rotation counted as at rest.")
+    max_rounds: int = Field(4, ge=0, description="Verification rounds (friction, then settling).")
+    settle_duration_s: float = Field(1.5, gt=0, description="Damped settling time per round.")
+    max_settle_shift_m: float = Field(
+        0.03, gt=0, description="In early rounds, a settled object that moved further is kept "
+                                "at its pose (its neighbours may still settle).")
+    final_settle_shift_m: float = Field(
+        0.15, gt=0, description="In the last round, the largest settling move accepted; an "
+                                "object that must move further is reported unresolved.")
+    use_diffsim: bool = Field(True, description="Optimise each object through the torch "
+                                                "simulator before the PyBullet check.")
+    convex_threshold: float = Field(0.05, gt=0, description="CoACD threshold (same as export).")
+    max_convex_pieces: int = Field(16, ge=1, description="Most convex pieces (same as export).")
+
+
+def _source(paths: ScenePaths, options: Options, manifest: Manifest) -> str:
+    return latest_state_stage(paths, manifest, None if options.source == "auto" else options.source,
+                              candidates=("init", "geomopt"))
+
+
+def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path]:
+    try:
+        src = _source(paths, options, manifest)
+    except Exception:
+        return []
+    return [paths.stage_dir(src), paths.contact_graph]
+
+
+def _initial_params(state: SceneState, meshes: dict, pieces: dict, opt: Options) -> dict:
+    params = {}
+    for obj in state.objects:
+        nominal = mass_properties(meshes[obj.id], pieces[obj.id], density_kg_m3=opt.density_kg_m3)
+        mass = obj.mass_kg if obj.mass_kg is not None else nominal.mass_kg
+        lo, hi = opt.mass_bounds
+        params[obj.id] = {
+            "world_from_object": obj.pose.copy(),
+            "mass_kg": float(np.clip(mass, lo * nominal.mass_kg, hi * nominal.mass_kg)),
+            "nominal_mass_kg": nominal.mass_kg,
+            "com_in_object": (np.asarray(obj.com_in_object) if obj.com_in_object is not None
+                              else nominal.com_in_object.copy()),
+            "friction": float(obj.friction if obj.friction is not None else opt.friction_init),
+        }
+    return params
+
+
+def _verify_and_repair(params: dict, pieces: dict, state: SceneState, order: list[int],
+                       opt: Options, log: dict, progress) -> dict:
+    """PyBullet rounds: check, raise friction of movers, settle; returns final drift."""
+    def make_world():
+        bodies = [SimBody(i, pieces[i], params[i]["world_from_object"], params[i]["mass_kg"],
+                          params[i]["com_in_object"], params[i]["friction"]) for i in order]
+        return build_world(bodies, state.support.point, state.support.normal,
+                           opt.support_friction, state.gravity)
+
+    def moving(d: dict) -> list[int]:
+        return [i for i, (t, r) in d.items() if t > opt.tolerance_m or r > opt.tolerance_deg]
+
+    world = make_world()
+    try:
+        before = {i: params[i]["world_from_object"] for i in order}
+        fixed = depenetrate(world, order)
+        for i in order:
+            shift = float(np.linalg.norm(fixed[i][:3, 3] - before[i][:3, 3]))
+            if shift > 1e-4:
+                log["objects"][i].append(f"depenetrated by {shift * 1000:.1f} mm")
+            params[i]["world_from_object"] = fixed[i]
+        start = {i: params[i]["world_from_object"] for i in order}
+        result = drift(world, start, opt.verify_duration_s)
+    finally:
+        world.close()
+    log["rounds"].append({"round": 0, "action": "depenetrate+check", "moving": moving(result),
+                          "drift": {str(i): list(v) for i, v in result.items()}})
+    for rnd in range(1, opt.max_rounds + 1):
+        movers = moving(result)
+        if not movers:
+            break
+        progress(f"verification round {rnd}: {len(movers)} moving", rnd / (opt.max_rounds + 1))
+        hi = opt.friction_bounds[1]
+        for i in movers:
+            if params[i]["friction"] < hi:
+                log["objects"][i].append(f"round {rnd}: friction {params[i]['friction']:.2f} -> "
+                                         f"{hi:.2f} (moved {result[i][0] * 1000:.1f} mm, "
+                                         f"{result[i][1]:.1f} deg)")
+                params[i]["friction"] = hi
+        world = make_world()
+        try:
+            start = {i: params[i]["world_from_object"] for i in order}
+            settled = settle(world, start, opt.settle_duration_s)
+            limit = opt.final_settle_shift_m if rnd == opt.max_rounds else opt.max_settle_shift_m
+            for i in order:
+                shift = float(np.linalg.norm(settled[i][:3, 3] - start[i][:3, 3]))
+                if shift <= limit:
+                    if shift > 1e-4:
+                        log["objects"][i].append(f"round {rnd}: settled by {shift * 1000:.1f} mm")
+                    params[i]["world_from_object"] = settled[i]
+                else:
+                    log["objects"][i].append(f"round {rnd}: settling moved it "
+                                             f"{shift * 1000:.0f} mm; kept in place")
+            start = {i: params[i]["world_from_object"] for i in order}
+            result = drift(world, start, opt.verify_duration_s)
+        finally:
+            world.close()
+        log["rounds"].append({"round": rnd, "action": "friction+settle", "moving": moving(result),
+                              "drift": {str(i): list(v) for i, v in result.items()}})
+    return result
+
+
+def run(ctx: StageContext) -> dict:
+    paths, opt = ctx.paths, ctx.options
+    src = _source(paths, opt, ctx.manifest)
+    state = read_state(paths.stage_dir(src))
+    meshes = {o.id: load_mesh(paths.stage_dir(src) / o.mesh) for o in state.objects}
+    cache = paths.root / ".cache" / "convex"
+    pieces = {}
+    for k, o in enumerate(state.objects):
+        ctx.progress(f"object {o.id}: collision pieces", 0.1 * k / max(len(state.objects), 1))
+        pieces[o.id] = cached_convex_decomposition(meshes[o.id], cache, opt.convex_threshold,
+                                                   opt.max_convex_pieces)
+    params = _initial_params(state, meshes, pieces, opt)
+    parents = parents_from_graph(paths.contact_graph)
+    heights = {o.id: float(np.min((o.pose[:3, :3] @ meshes[o.id].vertices.T).T[:, 2]
+                                  + o.pose[2, 3])) for o in state.objects}
+    order = order_root_to_leaves([o.id for o in state.objects], parents, heights)
+    log: dict = {"source": src, "order": order, "parents": parents, "objects": {i: [] for i in order},
+                 "rounds": []}
+
+    if opt.use_diffsim:
+        try:
+            from r2s.physopt.object_opt import optimise_objects
+        except ModuleNotFoundError:
+            optimise_objects = None
+        if optimise_objects is not None:
+            optimise_objects(params, meshes, state, order, parents, opt, log, ctx.progress)
+
+    final = _verify_and_repair(params, pieces, state, order, opt, log, ctx.progress)
+    moving = [i for i, (t, r) in final.items() if t > opt.tolerance_m or r > opt.tolerance_deg]
+
+    (ctx.out_dir / "meshes").mkdir()
+    objects = []
+    for o in state.objects:
+        p = params[o.id]
+        shutil.copyfile(paths.stage_dir(src) / o.mesh, ctx.out_dir / "meshes" / f"{o.id}.glb")
+        data = o.model_dump()
+        data.update(mesh=f"meshes/{o.id}.glb", world_from_object=p["world_from_object"].tolist(),
+                    mass_kg=p["mass_kg"], com_in_object=[float(x) for x in p["com_in_object"]],
+                    friction=p["friction"], physopt_drift_m=final[o.id][0],
+                    physopt_drift_deg=final[o.id][1])
+        objects.append(data)
+    out_state = SceneState(stage="physopt", gravity=state.gravity,
+                           support=state.support.model_copy(update={"friction": opt.support_friction}),
+                           objects=objects)
+    write_state(ctx.out_dir, out_state)
+    atomic_write_json(ctx.out_dir / "log.json", {**log, "objects": {str(k): v for k, v in log["objects"].items()}})
+    ctx.progress("done", 1.0)
+    return {"source": src, "objects": len(objects), "still_moving": len(moving),
+            "rounds": len(log["rounds"]) - 1}
+
+
+STAGE = StageSpec("physopt", Options, inputs, run)

@@ -1,0 +1,91 @@
+"""physopt on hand-built scenes: penetrations resolved, the PyBullet check passes, and the
+result is recorded per object."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pybullet as pb
+import trimesh
+
+from r2s.io.mesh_io import save_mesh
+from r2s.io.state import ObjectState, SceneState, SupportPlane, read_state, write_state
+from r2s.physopt.hierarchy import descendants, order_root_to_leaves
+from r2s.physopt.pybullet_world import SimBody, build_world, depenetrate, penetrations
+from r2s.stages.base import run_stage
+from r2s.stages.manifest import StageRecord, load_manifest, save_manifest
+from r2s.stages.physopt import STAGE as PHYSOPT, Options as PhysOptions
+
+
+def _pose(z: float, x: float = 0.0) -> list:
+    p = np.eye(4)
+    p[0, 3], p[2, 3] = x, z
+    return p.tolist()
+
+
+def _stack_scene(root: Path) -> Path:
+    """init/ state: a 10 cm box sunk 4 mm into the table, a 6 cm box sunk 3 mm into it."""
+    d = root / "init"
+    (d / "meshes").mkdir(parents=True)
+    save_mesh(trimesh.creation.box([0.1, 0.1, 0.1]), d / "meshes" / "1.glb")
+    save_mesh(trimesh.creation.box([0.06, 0.06, 0.06]), d / "meshes" / "2.glb")
+    write_state(d, SceneState(stage="init", support=SupportPlane(point=[0, 0, 0], normal=[0, 0, 1]),
+                              objects=[ObjectState(id=1, label="big", mesh="meshes/1.glb",
+                                                   world_from_object=_pose(0.046)),
+                                       ObjectState(id=2, label="small", mesh="meshes/2.glb",
+                                                   world_from_object=_pose(0.127, 0.01))]))
+    m = load_manifest(root / "manifest.json")
+    m.stages["init"] = StageRecord(status="done")
+    save_manifest(root / "manifest.json", m)
+    return root
+
+
+def test_depenetrate_moves_children_not_parents():
+    box = trimesh.creation.box([0.1, 0.1, 0.1])
+    bodies = [SimBody(1, [box], np.array(_pose(0.045)), 1.0, np.zeros(3), 0.8),
+              SimBody(2, [box], np.array(_pose(0.14)), 1.0, np.zeros(3), 0.8)]
+    world = build_world(bodies, [0, 0, 0], [0, 0, 1], 0.8)
+    try:
+        assert len(penetrations(world)) == 2
+        poses = depenetrate(world, [1, 2])
+        assert not [p for p in penetrations(world) if p[2] > 1.5e-3]
+        assert abs(poses[1][2, 3] - 0.05) < 1e-3  # pushed out of the table by 5 mm
+        assert abs(poses[2][2, 3] - 0.15) < 1.5e-3  # pushed out of box 1 by ~10 mm
+        assert abs(poses[1][0, 3]) < 1e-6 and abs(poses[2][0, 3]) < 1e-6
+    finally:
+        world.close()
+
+
+def test_hierarchy_order_and_descendants():
+    parents = {1: 0, 2: 1, 3: 2, 4: 0}
+    order = order_root_to_leaves([3, 2, 4, 1], parents, {1: 0.0, 2: 0.1, 3: 0.2, 4: 0.0})
+    assert order.index(1) < order.index(2) < order.index(3)
+    assert descendants(2, parents) == {2, 3}
+
+
+def test_physopt_stage_makes_stack_rest(tmp_path: Path):
+    root = _stack_scene(tmp_path / "scene")
+    result = run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False))
+    assert result.summary["still_moving"] == 0
+    state = read_state(root / "physopt")
+    z = {o.id: o.pose[2, 3] for o in state.objects}
+    assert abs(z[1] - 0.05) < 2e-3 and abs(z[2] - 0.13) < 3e-3
+    for o in state.objects:
+        assert 0.2 <= o.friction <= 1.0 and o.mass_kg > 0 and len(o.com_in_object) == 3
+    log = json.loads((root / "physopt" / "log.json").read_text())
+    assert any("depenetrated" in line for line in log["objects"]["1"])
+    # judge-style check on the result: 3 s, nothing moves more than 5 mm
+    world = build_world([SimBody(o.id, [trimesh.creation.box([0.1] * 3 if o.id == 1 else [0.06] * 3)],
+                                 o.pose, o.mass_kg, np.asarray(o.com_in_object), o.friction)
+                         for o in state.objects], [0, 0, 0], [0, 0, 1], state.support.friction)
+    try:
+        start = world.poses()
+        for _ in range(720):
+            pb.stepSimulation(physicsClientId=world.client)
+        end = world.poses()
+        for i in start:
+            assert np.linalg.norm(end[i][:3, 3] - start[i][:3, 3]) < 0.005
+    finally:
+        world.close()
