@@ -122,3 +122,19 @@ def test_exported_urdf_loads_with_mass_and_inertia(tmp_path: Path):
     assert info[1] == pytest.approx(0.9)  # lateral friction
     assert np.allclose(info[2], [0.5 / 12 * 0.02] * 3, rtol=1e-4)
     pb.disconnect(client)
+
+
+def test_mjcf_export_loads_in_mujoco_and_resting_box_stays(tmp_path: Path):
+    mujoco = pytest.importorskip("mujoco")
+    root = _gt_scene(tmp_path / "scene")
+    run_stage(EXPORT, root, ExportOptions(source="gt"))
+    model = mujoco.MjModel.from_xml_path(str(root / "export" / "scene.xml"))
+    data = mujoco.MjData(model)
+    assert model.nbody == 3  # world + two objects
+    assert model.body_mass[1] == pytest.approx(0.5, rel=1e-6)
+    mujoco.mj_forward(model, data)
+    start = data.xpos[1:].copy()
+    for _ in range(480):
+        mujoco.mj_step(model, data)
+    moved = np.linalg.norm(data.xpos[1:] - start, axis=1)
+    assert moved.max() < 0.003, moved

@@ -7,6 +7,7 @@ Layout (paths in scene.json relative to ``export/``)::
     export/meshes/<id>.obj          the same shape as OBJ (for URDF visuals)
     export/collision/<id>_<k>.obj   convex pieces, object frame
     export/urdf/<id>.urdf           single-link URDF with explicit inertia
+    export/scene.xml                the same scene as MJCF (MuJoCo)
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import trimesh
 
 from r2s.io.atomic import atomic_write_json, atomic_write_text
 from r2s.io.mesh_io import save_mesh
+from r2s.io.mjcf import write_mjcf
 from r2s.io.urdf import urdf_text
 
 
@@ -86,4 +88,5 @@ def write_export(out_dir: Path, gravity: Sequence[float], support: dict,
         "objects": objects,
     }
     atomic_write_json(out_dir / "scene.json", scene)
+    write_mjcf(out_dir, scene, {b.id: b.inertia_about_com for b in bodies})
     return scene
