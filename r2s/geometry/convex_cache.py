@@ -26,7 +26,7 @@ def mesh_key(mesh: trimesh.Trimesh, **params: object) -> str:
 
 
 def cached_convex_decomposition(mesh: trimesh.Trimesh, cache_dir: Path | None,
-                                threshold: float = 0.05, max_pieces: int = 16,
+                                threshold: float = 0.05, max_pieces: int = 64,
                                 seed: int = 0) -> list[trimesh.Trimesh]:
     """:func:`r2s.geometry.convex.convex_decomposition`, memoised in ``cache_dir``."""
     if cache_dir is None:

@@ -34,7 +34,7 @@ class Options(StageOptions):
     density_kg_m3: float = Field(600.0, gt=0, description="Density where no mass is estimated.")
     default_friction: float = Field(0.8, gt=0, description="Body friction where none is estimated.")
     convex_threshold: float = Field(0.05, gt=0, description="CoACD concavity threshold.")
-    max_convex_pieces: int = Field(16, ge=1, description="Most convex pieces per object.")
+    max_convex_pieces: int = Field(64, ge=1, description="Most convex pieces per object.")
     restitution: float = Field(0.0, ge=0, le=1, description="Restitution of every body.")
 
 

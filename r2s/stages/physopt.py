@@ -56,7 +56,7 @@ class Options(StageOptions):
     use_diffsim: bool = Field(True, description="Optimise each object through the torch "
                                                 "simulator before the PyBullet check.")
     convex_threshold: float = Field(0.05, gt=0, description="CoACD threshold (same as export).")
-    max_convex_pieces: int = Field(16, ge=1, description="Most convex pieces (same as export).")
+    max_convex_pieces: int = Field(64, ge=1, description="Most convex pieces (same as export).")
 
 
 def _source(paths: ScenePaths, options: Options, manifest: Manifest) -> str:
