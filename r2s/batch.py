@@ -27,6 +27,8 @@ COLUMNS: tuple[tuple[str, str, str], ...] = (
     ("CD [mm]", "chamfer_mm", "{:.1f}"),
     ("FS", "fscore", "{:.2f}"),
     ("IoU", "iou", "{:.2f}"),
+    ("PSNR", "psnr", "{:.2f}"),
+    ("SSIM", "ssim", "{:.3f}"),
     ("Pen. [mm]", "max_penetration_mm", "{:.1f}"),
     ("Float.", "floating_objects", "{:.1f}"),
     ("Time [s]", "time_per_scene_s", "{:.1f}"),

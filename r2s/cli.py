@@ -29,10 +29,9 @@ def _options_epilog(stage_name: str) -> str:
         spec = get_stage(stage_name)
     except ModuleNotFoundError:
         return ""
-    lines = ["Options for --set:\n\n"]
+    lines = ["Options for --set key=value:\n\n"]
     for name, fld in spec.options_type.model_fields.items():
-        default = fld.default
-        lines.append(f"  {name} = {default!r}: {fld.description or ''}\n\n")
+        lines.append(f"{name} (default {fld.default!r}): {fld.description or ''}\n\n")
     return "".join(lines)
 
 
@@ -71,8 +70,11 @@ _STAGE_HELP = {
     "diagnose": "Trace residuals to missing model effects; report error before and after.",
 }
 
+_WANTS_HELP = "--help" in sys.argv[1:]
 for _name, _summary in _STAGE_HELP.items():
-    app.command(name=_name, help=_summary, epilog=None)(_make_stage_command(_name, _summary))
+    # The option list imports the stage (and torch); build it only when help is asked for.
+    _epilog = _options_epilog(_name) if _WANTS_HELP and _name in sys.argv[1:] else None
+    app.command(name=_name, help=_summary, epilog=_epilog)(_make_stage_command(_name, _summary))
 
 
 @app.command()

@@ -38,6 +38,7 @@ METHOD_STAGES: dict[str, tuple[list[str], str]] = {
     "baseline": (["init"], "init"),
     "geo": (["init", "graph", "geomopt"], "geomopt"),
     "full": (["init", "graph", "geomopt", "physopt"], "physopt"),
+    "full+tex": (["init", "graph", "geomopt", "physopt", "texture"], "texture"),
 }
 
 

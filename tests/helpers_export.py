@@ -14,7 +14,8 @@ import numpy as np
 import trimesh
 
 
-def pose(translation: Sequence[float] = (0, 0, 0), rotation: Optional[np.ndarray] = None) -> np.ndarray:
+def pose(translation: Sequence[float] = (0, 0, 0),
+         rotation: Optional[np.ndarray] = None) -> np.ndarray:
     """(4, 4) rigid transform."""
     out = np.eye(4)
     if rotation is not None:

@@ -9,6 +9,7 @@ is the default; CoACD remains selectable. A nearly convex shape is kept as its h
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 from typing import Literal
@@ -29,10 +30,30 @@ def _clean(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return mesh
 
 
+@contextlib.contextmanager
+def _quiet_c_stdout():
+    """Silence output that C code writes straight to file descriptors 1 and 2."""
+    saved = [os.dup(1), os.dup(2)]
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        import sys
+
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os.dup2(devnull, 1)
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in saved + [devnull]:
+            os.close(fd)
+
+
 def _vhacd(mesh: trimesh.Trimesh, resolution: int, max_vertices: int) -> list[trimesh.Trimesh]:
     import pybullet as pb
 
-    with tempfile.TemporaryDirectory(prefix="r2s-vhacd-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="r2s-vhacd-") as tmp, _quiet_c_stdout():
         src, dst = os.path.join(tmp, "in.obj"), os.path.join(tmp, "out.obj")
         mesh.export(src)
         client = pb.connect(pb.DIRECT)
@@ -46,7 +67,7 @@ def _vhacd(mesh: trimesh.Trimesh, resolution: int, max_vertices: int) -> list[tr
             return []
         loaded = trimesh.load(dst, split_object=True, group_material=False, process=False)
     geoms = (list(loaded.geometry.values()) if isinstance(loaded, trimesh.Scene)
-             else [loaded])
+             else loaded.split(only_watertight=False))
     return [g.convex_hull for g in geoms if len(g.vertices) >= 4]
 
 

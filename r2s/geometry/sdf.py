@@ -25,6 +25,8 @@ import trimesh
 from scipy import ndimage
 
 SIGN_CONVENTION = "negative_inside"
+REFINE_VOXELS = 12.0
+"""Far voxels up to this many voxels from the surface get the neighbour refinement."""
 FRAME = "object"
 
 
@@ -139,26 +141,27 @@ def _o3d_points(points: np.ndarray):
 
 
 def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
-                   chunk: int = 2048) -> np.ndarray:
+                   chunk: int = 1024) -> np.ndarray:
     """Generalised winding number of a triangle soup at (N, 3) points; (N,) float64.
 
     About 1 inside and 0 outside a closed, outward-oriented mesh; in between near holes.
-    Sum of signed solid angles (Van Oosterom & Strackee) over 4 pi. Cost N x F.
+    Sum of signed solid angles (Van Oosterom & Strackee) over 4 pi. Cost N x F (torch).
     """
-    tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]  # (F, 3, 3)
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    out = np.empty(len(points))
-    for s in range(0, len(points), chunk):
-        p = points[s:s + chunk]
-        a = tri[None, :, 0, :] - p[:, None, :]
-        b = tri[None, :, 1, :] - p[:, None, :]
-        c = tri[None, :, 2, :] - p[:, None, :]
-        la, lb, lc = (np.linalg.norm(v, axis=-1) for v in (a, b, c))
-        det = np.einsum("pfi,pfi->pf", a, np.cross(b, c))
-        den = (la * lb * lc + np.einsum("pfi,pfi->pf", a, b) * lc
-               + np.einsum("pfi,pfi->pf", b, c) * la + np.einsum("pfi,pfi->pf", c, a) * lb)
-        out[s:s + chunk] = np.arctan2(det, den).sum(axis=1) / (2.0 * np.pi)
-    return out
+    import torch
+
+    tri = torch.as_tensor(np.asarray(vertices, dtype=np.float64)[np.asarray(faces)])
+    pts = torch.as_tensor(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    out = torch.empty(len(pts), dtype=torch.float64)
+    with torch.no_grad():
+        for s in range(0, len(pts), chunk):
+            p = pts[s:s + chunk, None, :]
+            a, b, c = tri[None, :, 0] - p, tri[None, :, 1] - p, tri[None, :, 2] - p
+            la, lb, lc = a.norm(dim=-1), b.norm(dim=-1), c.norm(dim=-1)
+            det = (a * torch.linalg.cross(b, c, dim=-1)).sum(-1)
+            den = (la * lb * lc + (a * b).sum(-1) * lc + (b * c).sum(-1) * la
+                   + (c * a).sum(-1) * lb)
+            out[s:s + chunk] = torch.atan2(det, den).sum(dim=1) / (2.0 * np.pi)
+    return out.numpy()
 
 
 def _decimated(mesh: trimesh.Trimesh, max_faces: int) -> tuple[np.ndarray, np.ndarray]:
@@ -189,32 +192,33 @@ def _surface_seed_mask(mesh: trimesh.Trimesh, origin: np.ndarray, voxel: float,
     return mask
 
 
-def _inside_watertight(scene, points: np.ndarray) -> np.ndarray:
-    return scene.compute_occupancy(_o3d_points(points), nsamples=3).numpy() > 0.5
+def _component_representatives(labels_far: np.ndarray, per_component: int
+                                ) -> tuple[np.ndarray, np.ndarray]:
+    """Up to ``per_component`` positions (into ``labels_far``) spread over each label.
+
+    Returns (positions (K,), their component labels (K,)).
+    """
+    order = np.argsort(labels_far, kind="stable")
+    comps, starts, counts = np.unique(labels_far[order], return_index=True, return_counts=True)
+    picks = (starts[:, None] + (counts[:, None] * np.arange(per_component)[None]) // per_component)
+    return order[picks.reshape(-1)], np.repeat(comps, per_component)
 
 
-def _inside_open(mesh: trimesh.Trimesh, points: np.ndarray, closest: np.ndarray,
-                 closest_normals: np.ndarray, distance: np.ndarray, origin: np.ndarray,
-                 voxel: float, resolution: int, winding_resolution: int,
-                 winding_max_faces: int) -> np.ndarray:
-    """Inside test for a mesh with holes (see the module docstring)."""
-    wr = int(min(winding_resolution, resolution))
-    side = voxel * (resolution - 1)
-    coarse_voxel = side / (wr - 1)
-    coarse_pts = grid_points(origin, coarse_voxel, wr).reshape(-1, 3)
-    v, f = _decimated(mesh, winding_max_faces)
-    w = winding_number(v, f, coarse_pts).reshape((wr,) * 3)
-    w_fine = trilinear_sample(w.astype(np.float32), origin, coarse_voxel, points)
-    inside = w_fine > 0.5
-    near = distance < 2.0 * coarse_voxel
-    side_sign = np.einsum("ni,ni->n", points[near] - closest[near], closest_normals[near])
-    inside[near] = side_sign < 0.0
-    return inside
+def _component_sign(labels_far: np.ndarray, rep_pos: np.ndarray, rep_comp: np.ndarray,
+                    rep_inside_score: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per far voxel: inside by majority over its component's representatives, and whether
+    the representatives agreed (unanimous)."""
+    n = int(labels_far.max()) + 1 if len(labels_far) else 1
+    votes = np.bincount(rep_comp, weights=rep_inside_score > 0.5, minlength=n)
+    total = np.bincount(rep_comp, minlength=n)
+    frac = votes / np.maximum(total, 1)
+    unanimous = (frac == 0.0) | (frac == 1.0)
+    return frac[labels_far] > 0.5, unanimous[labels_far]
 
 
 def compute_sdf(mesh: trimesh.Trimesh, resolution: int = 128, padding_m: float | None = None,
-                band_voxels: float = 3.0, winding_resolution: int = 32,
-                winding_max_faces: int = 4000, seed: int = 0) -> SdfGrid:
+                band_voxels: float = 3.0, refine_far: bool = True, winding_resolution: int = 16,
+                winding_max_faces: int = 600, seed: int = 0) -> SdfGrid:
     """Signed distance grid of ``mesh`` in its own (object) frame.
 
     Parameters
@@ -224,13 +228,25 @@ def compute_sdf(mesh: trimesh.Trimesh, resolution: int = 128, padding_m: float |
     padding_m : margin around the mesh's bounding box; default 10 % of its largest extent
         plus two voxels' worth, so that contacts a few mm off the surface stay inside.
     band_voxels : half-width, in voxels, of the band of exact closest-point queries.
-    winding_resolution : coarse grid size for the winding-number sign of open meshes.
-    winding_max_faces : the mesh is decimated to this many faces for the winding number.
+    refine_far : also try the nearest seeds of the six neighbours of a far voxel up to
+        REFINE_VOXELS from the surface (the far-field error drops from about 0.7 to 0.4
+        voxel there; deeper voxels keep the single candidate).
+    winding_resolution : coarse grid size for the winding number of leaky open meshes.
+    winding_max_faces : the mesh is decimated to this many faces for winding numbers.
     seed : seed of the surface samples that locate the band.
 
     Returns
     -------
     SdfGrid with values_m (R, R, R) float32, negative inside.
+
+    Notes
+    -----
+    Beyond the band the space splits into connected components that the surface does not
+    cross, so each component has one sign: it is decided by a majority of seven voxels
+    (ray parity for a watertight mesh, the winding number otherwise). For an open mesh, a
+    hole may join the inside to the outer component (the one touching the grid's
+    boundary); there each voxel is inside when it lies behind its closest face and the
+    coarse winding number exceeds 1/2.
     """
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
@@ -242,37 +258,91 @@ def compute_sdf(mesh: trimesh.Trimesh, resolution: int = 128, padding_m: float |
         # two voxels of a grid whose side is 1.2 x extent, plus 10 % of the extent
         padding_m = 0.1 * extent + 2.0 * 1.2 * extent / (resolution - 1)
     origin, voxel = grid_layout(bounds, resolution, padding_m)
+    shape = (resolution,) * 3
 
     scene = _raycasting_scene(vertices, faces)
     seeds = _surface_seed_mask(mesh, origin, voxel, resolution, seed)
     dist_to_seed, nearest = ndimage.distance_transform_edt(~seeds, return_indices=True)
     band = dist_to_seed <= band_voxels
-    band_idx = np.nonzero(band)
+    nearest_flat = np.ravel_multi_index(tuple(nearest), shape).reshape(-1)
+    seed_distance = dist_to_seed.reshape(-1)
+    del nearest, dist_to_seed
 
-    centres = grid_points(origin, voxel, resolution)
-    band_pts = centres[band_idx]
+    # band: exact closest points
+    band_idx = np.flatnonzero(band)
+    band_pts = origin + voxel * np.stack(np.unravel_index(band_idx, shape), axis=1)
     result = scene.compute_closest_points(_o3d_points(band_pts))
-    closest_band = result["points"].numpy().astype(np.float64)
-    normals_band = result["primitive_normals"].numpy().astype(np.float64)
+    cp_band = result["points"].numpy().astype(np.float64)
+    d_band = np.linalg.norm(band_pts - cp_band, axis=1)
+    row = np.full(resolution**3, -1, dtype=np.int64)
+    row[band_idx] = np.arange(len(band_idx))
 
-    # closest surface point of every voxel: its own (band) or its nearest seed voxel's
-    closest = np.empty(centres.shape, dtype=np.float64)
-    normals = np.empty(centres.shape, dtype=np.float64)
-    closest[band_idx] = closest_band
-    normals[band_idx] = normals_band
-    far = ~band
-    far_idx = np.nonzero(far)
-    src = tuple(nearest[a][far] for a in range(3))
-    closest[far_idx] = closest[src]
-    normals[far_idx] = normals[src]
+    # far field: distance to the closest point of the nearest seed (seeds lie in the band)
+    far_idx = np.flatnonzero(~band)
+    far_ijk = np.stack(np.unravel_index(far_idx, shape), axis=1)
+    far_pts = (origin + voxel * far_ijk).astype(np.float32)
+    cp32 = cp_band.astype(np.float32)
+    best_row = row[nearest_flat[far_idx]]
+    d_far = np.linalg.norm(far_pts - cp32[best_row], axis=1)
+    if refine_far:
+        sel = np.flatnonzero(seed_distance[far_idx] <= REFINE_VOXELS)
+        pts_sel = far_pts[sel]
+        for axis in range(3):
+            for step in (-1, 1):
+                nb = far_ijk[sel]
+                nb[:, axis] = np.clip(nb[:, axis] + step, 0, resolution - 1)
+                src = row[nearest_flat[np.ravel_multi_index(nb.T, shape)]]
+                d = np.linalg.norm(pts_sel - cp32[src], axis=1)
+                better = d < d_far[sel]
+                d_far[sel[better]] = d[better]
+                best_row[sel[better]] = src[better]
+    del far_ijk
 
-    pts = centres.reshape(-1, 3)
-    closest = closest.reshape(-1, 3)
-    distance = np.linalg.norm(pts - closest, axis=1)
+    # signs: one per far component (the surface lies inside the band)
+    labels, _ = ndimage.label(~band)
+    boundary = np.unique(np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(),
+                                         labels[:, :, [0, -1]].ravel()]))
+    labels_far = labels.reshape(-1)[far_idx]
+    del labels
+    rep_pos, rep_comp = _component_representatives(labels_far, 7)
+    rep_pts = far_pts[rep_pos].astype(np.float64)
     if mesh.is_watertight:
-        inside = _inside_watertight(scene, pts)
+        inside_band = _occupancy(scene, band_pts)
+        rep_score = _occupancy(scene, rep_pts).astype(np.float64)
+        inside_far, _ = _component_sign(labels_far, rep_pos, rep_comp, rep_score)
     else:
-        inside = _inside_open(mesh, pts, closest, normals.reshape(-1, 3), distance, origin,
-                              voxel, resolution, winding_resolution, winding_max_faces)
-    values = np.where(inside, -distance, distance).reshape((resolution,) * 3)
-    return SdfGrid(values_m=values.astype(np.float32), origin_m=origin, voxel_size_m=voxel)
+        normals = result["primitive_normals"].numpy().astype(np.float64)
+        inside_band = np.einsum("ni,ni->n", band_pts - cp_band, normals) < 0.0
+        v, f = _decimated(mesh, winding_max_faces)
+        inside_far, _ = _component_sign(labels_far, rep_pos, rep_comp,
+                                        winding_number(v, f, rep_pts))
+        # the outer component(s) may reach inside through a hole: there a voxel is inside
+        # where it lies behind its closest face and the coarse winding number says so
+        outer = np.isin(labels_far, boundary[boundary > 0])
+        if np.any(outer):
+            pts_o = far_pts[outer].astype(np.float64)
+            behind = np.einsum("ni,ni->n", pts_o - cp_band[best_row[outer]],
+                               normals[best_row[outer]]) < 0.0
+            w = _coarse_winding(v, f, origin, voxel, resolution, winding_resolution, pts_o)
+            inside_far[outer] = behind & (w > 0.5)
+
+    values = np.empty(resolution**3, dtype=np.float32)
+    values[band_idx] = np.where(inside_band, -d_band, d_band)
+    values[far_idx] = np.where(inside_far, -d_far, d_far)
+    return SdfGrid(values_m=values.reshape(shape), origin_m=origin, voxel_size_m=voxel)
+
+
+def _occupancy(scene, points: np.ndarray) -> np.ndarray:
+    """Ray parity, majority of three rays (one ray may graze an edge and miscount)."""
+    if len(points) == 0:
+        return np.zeros(0, dtype=bool)
+    return scene.compute_occupancy(_o3d_points(points), nsamples=3).numpy() > 0.5
+
+
+def _coarse_winding(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray, voxel: float,
+                    resolution: int, winding_resolution: int, points: np.ndarray) -> np.ndarray:
+    """Winding number on a coarse grid over the SDF's box, interpolated at ``points``."""
+    wr = int(max(4, min(winding_resolution, resolution)))
+    coarse_voxel = voxel * (resolution - 1) / (wr - 1)
+    w = winding_number(vertices, faces, grid_points(origin, coarse_voxel, wr).reshape(-1, 3))
+    return trilinear_sample(w.reshape((wr,) * 3), origin, coarse_voxel, points)

@@ -20,7 +20,7 @@ import numpy as np
 import trimesh
 
 from r2s.io.atomic import atomic_write_json, atomic_write_text
-from r2s.io.mesh_io import save_mesh
+from r2s.io.mesh_io import save_mesh, untextured
 from r2s.io.mjcf import write_mjcf
 from r2s.io.urdf import urdf_text
 
@@ -54,7 +54,7 @@ def write_export(out_dir: Path, gravity: Sequence[float], support: dict,
     for body in bodies:
         visual_rel = f"meshes/{body.id}.glb"
         save_mesh(body.visual_mesh, out_dir / visual_rel)
-        save_mesh(body.visual_mesh, out_dir / f"meshes/{body.id}.obj")
+        save_mesh(untextured(body.visual_mesh), out_dir / f"meshes/{body.id}.obj")
         collision_rel = []
         for k, piece in enumerate(body.collision_pieces):
             rel = f"collision/{body.id}_{k}.obj"

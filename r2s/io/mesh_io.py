@@ -49,3 +49,21 @@ def save_mesh(mesh: trimesh.Trimesh, path: Path) -> None:
     """Save atomically; the format follows the suffix (.glb, .obj, .ply, .stl)."""
     path = Path(path)
     atomic_write_bytes(path, mesh_bytes(mesh, path.suffix.lstrip(".").lower()))
+
+
+def welded(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """Geometry only: vertices split along UV seams or normals merged back (a textured GLB
+    is stored with seams split, which breaks watertightness, volume and decomposition)."""
+    geom = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), process=False)
+    geom.merge_vertices(merge_tex=True, merge_norm=True)
+    return geom
+
+
+def untextured(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """The same triangles with vertex colours only (for OBJ files without materials)."""
+    out = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), process=False)
+    try:
+        out.visual = trimesh.visual.ColorVisuals(out, vertex_colors=mesh.visual.to_color().vertex_colors)
+    except Exception:
+        pass
+    return out

@@ -5,7 +5,8 @@ Every function takes trimesh meshes already posed in the WORLD frame (use :func:
 - Chamfer distance (mm): ``(mean d(recon -> gt) + mean d(gt -> recon)) / 2`` where
   ``d(a -> b)`` is the distance from each of ``n_samples`` area-uniform surface samples of
   ``a`` to the nearest point of the *surface* of ``b`` (exact point-to-triangle distance,
-  so there is no sampling floor: a mesh against itself reads 0 up to rounding).
+  :mod:`r2s.metrics.proximity`, so there is no sampling floor: a mesh against itself
+  reads 0 up to rounding).
 - F-score at ``threshold_mm`` (default 10 mm): harmonic mean of precision (share of recon
   samples within the threshold of gt) and recall (share of gt samples within it of recon).
 - Volumetric IoU: ``n_samples`` points uniform in the union of the two bounding boxes,
@@ -26,6 +27,7 @@ import numpy as np
 import trimesh
 
 from r2s.metrics.occupancy import contains
+from r2s.metrics.proximity import surface_distances_to
 from r2s.metrics.stability import rotation_angle_deg
 
 
@@ -42,9 +44,7 @@ def surface_distances_m(mesh_a: trimesh.Trimesh, mesh_b: trimesh.Trimesh, n_samp
     rng = np.random.default_rng(seed)
     samples_a, _ = trimesh.sample.sample_surface(mesh_a, n_samples, seed=rng)
     samples_b, _ = trimesh.sample.sample_surface(mesh_b, n_samples, seed=rng)
-    _, d_ab, _ = trimesh.proximity.closest_point(mesh_b, samples_a)
-    _, d_ba, _ = trimesh.proximity.closest_point(mesh_a, samples_b)
-    return np.asarray(d_ab, dtype=np.float64), np.asarray(d_ba, dtype=np.float64)
+    return surface_distances_to(mesh_b, samples_a), surface_distances_to(mesh_a, samples_b)
 
 
 @dataclass(frozen=True)

@@ -91,5 +91,6 @@ def contains(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
     if len(points) == 0:
         return np.zeros(0, dtype=bool)
     triangles = np.asarray(mesh.triangles, dtype=np.float64)
-    votes = sum((crossing_counts(triangles, points, axis) % 2).astype(np.int64) for axis in range(3))
+    votes = sum((crossing_counts(triangles, points, axis) % 2).astype(np.int64)
+                for axis in range(3))
     return votes >= 2

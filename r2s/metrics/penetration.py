@@ -21,6 +21,9 @@ from r2s.sim.pybullet_scene import LoadedScene
 PYBULLET_MESH_MARGIN_M = 0.001
 """Collision margin PyBullet gives a ``GEOM_MESH`` convex piece (checked by the tests)."""
 
+CONTACT_TOLERANCE_M = 1e-6
+"""|signed distance| below this counts as touching (PyBullet computes in float32)."""
+
 SUPPORT_ID = 0
 """Id used for the support plane in pair lists (object ids are positive)."""
 
@@ -60,7 +63,8 @@ def scene_distances(client: int, loaded: LoadedScene, search_m: float = 1.0) -> 
         d = _min_distance_m(client, body_a, loaded.support_body, search_m)
         support[i] = d + PYBULLET_MESH_MARGIN_M
         for j in range(i + 1, n):
-            d = _min_distance_m(client, body_a, loaded.body_ids[ids[j]], search_m + 2 * PYBULLET_MESH_MARGIN_M)
+            d = _min_distance_m(client, body_a, loaded.body_ids[ids[j]],
+                                search_m + 2 * PYBULLET_MESH_MARGIN_M)
             pair[i, j] = pair[j, i] = d + 2 * PYBULLET_MESH_MARGIN_M
     return SceneDistances(ids=np.asarray(ids, dtype=np.int64), object_object_m=pair,
                           object_support_m=support)
@@ -96,9 +100,18 @@ class PenetrationMetrics:
     floating_objects: int
 
 
-def penetration_metrics(dist: SceneDistances, floating_gap_mm: float = 2.0) -> PenetrationMetrics:
-    """Summarise :class:`SceneDistances` (pure function)."""
+def penetration_metrics(dist: SceneDistances, floating_gap_mm: float = 2.0,
+                        tolerance_m: float = CONTACT_TOLERANCE_M) -> PenetrationMetrics:
+    """Summarise :class:`SceneDistances` (pure function).
+
+    Signed distances within ``tolerance_m`` of zero are read as exact contact.
+    """
     ids = [int(i) for i in dist.ids]
+    def snap(d: np.ndarray) -> np.ndarray:
+        return np.where(np.abs(d) < tolerance_m, 0.0, d)
+
+    dist = SceneDistances(ids=dist.ids, object_object_m=snap(dist.object_object_m),
+                          object_support_m=snap(dist.object_support_m))
     n = len(ids)
     pairs: list[tuple[int, int, float]] = []
     object_depths: list[float] = []
@@ -115,8 +128,8 @@ def penetration_metrics(dist: SceneDistances, floating_gap_mm: float = 2.0) -> P
 
     nearest = np.minimum(dist.object_object_m.min(axis=1) if n else np.zeros(0),
                          dist.object_support_m)
-    per_object_pen = np.maximum(0.0, -1000.0 * nearest)
-    gap = np.maximum(0.0, 1000.0 * nearest)
+    per_object_pen = np.where(nearest < 0, -1000.0 * nearest, 0.0)
+    gap = np.where(nearest > 0, 1000.0 * nearest, 0.0)
     floating = gap > floating_gap_mm
     return PenetrationMetrics(
         max_penetration_mm=max(depths, default=0.0),

@@ -44,13 +44,14 @@ class LoadedScene:
 
     def initial_world_from_object(self) -> np.ndarray:
         """(N, 4, 4) ``world_from_object`` as written in scene.json, in :attr:`ids` order."""
-        return np.stack([np.asarray(o.world_from_object, dtype=np.float64)
-                         for o in self.scene.objects])
+        poses = [np.asarray(o.world_from_object, dtype=np.float64) for o in self.scene.objects]
+        return np.stack(poses) if poses else np.zeros((0, 4, 4))
 
     def current_world_from_object(self, client: int) -> np.ndarray:
         """(N, 4, 4) ``world_from_object`` of the bodies now, in :attr:`ids` order."""
-        return np.stack([body_world_from_object(client, self.body_ids[i], self.com_in_object[i])
-                         for i in self.ids])
+        poses = [body_world_from_object(client, self.body_ids[i], self.com_in_object[i])
+                 for i in self.ids]
+        return np.stack(poses) if poses else np.zeros((0, 4, 4))
 
 
 def load_export_scene(client: int, export_dir: Path) -> LoadedScene:

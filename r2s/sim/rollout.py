@@ -41,7 +41,8 @@ class Trajectory:
     def com_world_m(self) -> np.ndarray:
         """(T, N, 3) COM positions in the world frame."""
         rot = self.world_from_object[..., :3, :3]
-        return np.einsum("tnij,nj->tni", rot, self.com_in_object) + self.world_from_object[..., :3, 3]
+        origin = self.world_from_object[..., :3, 3]
+        return np.einsum("tnij,nj->tni", rot, self.com_in_object) + origin
 
 
 def _sample(client: int, loaded: LoadedScene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

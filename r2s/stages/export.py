@@ -18,7 +18,7 @@ from r2s.errors import StageError
 from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.mass_properties import mass_properties
 from r2s.io.export_writer import ExportBody, write_export
-from r2s.io.mesh_io import load_mesh
+from r2s.io.mesh_io import load_mesh, welded
 from r2s.io.paths import ScenePaths
 from r2s.io.scene_json import read_gt_scene
 from r2s.io.state import read_state
@@ -96,9 +96,10 @@ def run(ctx: StageContext) -> dict:
     for k, item in enumerate(items):
         ctx.progress(f"object {item['id']}: convex decomposition", k / max(len(items), 1))
         mesh = load_mesh(item["mesh_path"])
-        pieces = cached_convex_decomposition(mesh, cache, threshold=opt.convex_threshold,
+        geom = welded(mesh)
+        pieces = cached_convex_decomposition(geom, cache, threshold=opt.convex_threshold,
                                              max_pieces=opt.max_convex_pieces)
-        props = mass_properties(mesh, pieces, mass_kg=item["mass_kg"],
+        props = mass_properties(geom, pieces, mass_kg=item["mass_kg"],
                                 density_kg_m3=opt.density_kg_m3)
         # An estimated COM (non-uniform density) keeps the uniform body's inertia: the
         # inertia of a non-uniform body is not observable from one image.

@@ -22,7 +22,7 @@ from pydantic import Field
 from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.mass_properties import mass_properties
 from r2s.io.atomic import atomic_write_json
-from r2s.io.mesh_io import load_mesh
+from r2s.io.mesh_io import load_mesh, welded
 from r2s.io.paths import ScenePaths
 from r2s.io.state import SceneState, read_state, write_state
 from r2s.physopt.hierarchy import order_root_to_leaves, parents_from_graph
@@ -155,7 +155,7 @@ def run(ctx: StageContext) -> dict:
     paths, opt = ctx.paths, ctx.options
     src = _source(paths, opt, ctx.manifest)
     state = read_state(paths.stage_dir(src))
-    meshes = {o.id: load_mesh(paths.stage_dir(src) / o.mesh) for o in state.objects}
+    meshes = {o.id: welded(load_mesh(paths.stage_dir(src) / o.mesh)) for o in state.objects}
     cache = paths.root / ".cache" / "convex"
     pieces = {}
     for k, o in enumerate(state.objects):

@@ -1,0 +1,235 @@
+"""Complete a closed mesh of an object seen from one view, with no shape prior.
+
+The observed points are expressed in the support plane's frame (z up) and turned into a
+height field: the top surface is the highest point in each grid cell, the footprint is
+the convex hull of the points projected on the plane (the back of an object is not seen
+from one view, but its top usually is), unseen cells take heights interpolated from
+observed ones, and every column is extruded down to the surface the object stands on:
+the support plane, or the top of what is under it. A bowl keeps its dip because each
+column keeps its own top.
+
+The solid is the zero level set of ``min(-footprint_sdf(x, y), top(x, y) - z,
+z - bottom(x, y))``, meshed by marching cubes on a padded grid, which gives a closed,
+watertight surface with vertical walls along the hull.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+from scipy import ndimage
+from scipy.interpolate import griddata
+from scipy.spatial import ConvexHull, QhullError, cKDTree
+from skimage.measure import marching_cubes
+
+from r2s.geometry.camera import transform_points
+from r2s.geometry.plane import world_from_plane
+
+
+@dataclass(frozen=True)
+class CompletedShape:
+    """A completed object.
+
+    Attributes
+    ----------
+    mesh : closed triangle mesh in the object frame (metres), with vertex colours when
+        colours were given. The object frame has the plane frame's axes; its origin is
+        the footprint centre at the bottom of the mesh.
+    world_from_object : (4, 4) rigid.
+    bottom_m : height of the object's base above the support plane (0 on the table).
+    """
+
+    mesh: trimesh.Trimesh
+    world_from_object: np.ndarray
+    bottom_m: float
+
+
+def footprint_sdf(hull_equations: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Signed distance-like field of a convex polygon, negative inside.
+
+    ``max_k (n_k . xy + c_k)`` over the hull's edge lines (unit outward normals); exact on
+    the boundary and inside, a lower bound of the distance outside.
+
+    hull_equations : (K, 3) ``[nx, ny, c]`` rows of ``scipy.spatial.ConvexHull.equations``.
+    xy : (..., 2). Returns (...,).
+    """
+    eq = np.asarray(hull_equations, dtype=np.float64)
+    return np.max(xy @ eq[:, :2].T + eq[:, 2], axis=-1)
+
+
+def _top_height_map(pts: np.ndarray, x0: float, y0: float, nx: int, ny: int,
+                    cell_m: float) -> np.ndarray:
+    """(nx, ny) highest point per cell, NaN where no point falls."""
+    ix = np.clip(np.floor((pts[:, 0] - x0) / cell_m + 0.5).astype(np.int64), 0, nx - 1)
+    iy = np.clip(np.floor((pts[:, 1] - y0) / cell_m + 0.5).astype(np.int64), 0, ny - 1)
+    top = np.full((nx, ny), -np.inf)
+    np.maximum.at(top, (ix, iy), pts[:, 2])
+    top[~np.isfinite(top)] = np.nan
+    return top
+
+
+def _fill(values: np.ndarray, known: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """Fill unknown grid nodes: linear interpolation inside the known nodes' hull, nearest
+    known node outside it."""
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    src = np.stack([gx[known], gy[known]], axis=1)
+    out = values.copy()
+    unknown = ~known
+    if unknown.any():
+        dst = np.stack([gx[unknown], gy[unknown]], axis=1)
+        lin = (griddata(src, values[known], dst, method="linear")
+               if len(src) >= 4 else np.full(len(dst), np.nan))
+        miss = ~np.isfinite(lin)
+        if miss.any():
+            _, nn = cKDTree(src).query(dst[miss])
+            lin[miss] = values[known][nn]
+        out[unknown] = lin
+    return out
+
+
+def _support_height(pts: np.ndarray, below: np.ndarray | None, hull_eq: np.ndarray,
+                    margin_m: float, min_points: int = 30) -> tuple[float, np.ndarray | None]:
+    """Height of what the object stands on, as a plane ``z = a x + b y + c`` or 0.
+
+    Candidates are other objects' points under the footprint (grown by ``margin_m``) and
+    below the object's lowest observed point (+ margin). Returns (min height over the
+    candidates, coefficients (3,) or None for the support plane itself).
+    """
+    if below is None or len(below) < min_points:
+        return 0.0, None
+    z_low = float(np.percentile(pts[:, 2], 1))
+    sel = below[(footprint_sdf(hull_eq, below[:, :2]) < margin_m)
+                & (below[:, 2] < z_low + margin_m) & (below[:, 2] > margin_m / 2)]
+    if len(sel) < min_points:
+        return 0.0, None
+    a = np.c_[sel[:, 0], sel[:, 1], np.ones(len(sel))]
+    coef, *_ = np.linalg.lstsq(a, sel[:, 2], rcond=None)
+    if np.hypot(coef[0], coef[1]) > np.tan(np.radians(30)):
+        coef = np.array([0.0, 0.0, float(np.median(sel[:, 2]))])
+    return float(sel[:, 2].min()), coef
+
+
+def drop_isolated(points: np.ndarray, k: int = 8, factor: float = 4.0) -> np.ndarray:
+    """(N,) bool: points whose k-th neighbour is no farther than ``factor`` times the
+    median k-th-neighbour distance (mixed "flying" pixels at depth edges are isolated)."""
+    pts = np.asarray(points, dtype=np.float64)
+    if len(pts) <= k:
+        return np.ones(len(pts), dtype=bool)
+    dist, _ = cKDTree(pts).query(pts, k=k + 1)
+    kth = dist[:, -1]
+    return kth <= factor * max(float(np.median(kth)), 1e-9)
+
+
+def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
+                         plane_normal: np.ndarray, colors: np.ndarray | None = None,
+                         cell_m: float = 0.003, below_points_world: np.ndarray | None = None,
+                         max_cells: int = 160, median_px: int = 3,
+                         hull_margin_m: float = 0.0, outlier_factor: float = 4.0
+                         ) -> CompletedShape:
+    """Complete a watertight mesh from one partial view of an object on a plane.
+
+    Parameters
+    ----------
+    points_world : (N, 3) the object's observed points, world frame (N >= 10).
+    plane_point, plane_normal : (3,) the support plane (normal up).
+    colors : (N, 3) uint8 colour of each point, or None.
+    cell_m : grid cell size (grown so no side has more than ``max_cells`` cells).
+    below_points_world : (M, 3) other objects' observed points; those under the footprint
+        and below this object raise its base (an object standing on another one).
+    median_px : size of the median filter that clips spikes of the top heights (1 = none).
+    hull_margin_m : grow the footprint by this much; a fraction of the pixel footprint on
+        the surface makes up for the outermost samples lying inside the true outline.
+    outlier_factor : points far from their neighbours (see :func:`drop_isolated`) are
+        ignored, so that mixed pixels behind an edge do not stretch the footprint;
+        0 keeps every point.
+
+    Returns
+    -------
+    :class:`CompletedShape`; ``ValueError`` for degenerate input (collinear points).
+    """
+    pts_w = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+    keep = np.all(np.isfinite(pts_w), axis=1)
+    if outlier_factor > 0 and keep.sum() > 20:
+        keep[keep] = drop_isolated(pts_w[keep], factor=outlier_factor)
+    pts_w = pts_w[keep]
+    if len(pts_w) < 10:
+        raise ValueError("completion needs at least 10 observed points")
+    world_from_pl = world_from_plane(plane_point, plane_normal)
+    plane_from_world = np.linalg.inv(world_from_pl)
+    pts = transform_points(plane_from_world, pts_w)
+    pts[:, 2] = np.maximum(pts[:, 2], 0.0)  # nothing is below the support
+    try:
+        hull = ConvexHull(pts[:, :2])
+    except QhullError as exc:
+        raise ValueError(f"observed points have no 2-D footprint ({exc.args[0][:40]})") from None
+    lo = pts[:, :2].min(axis=0) - hull_margin_m
+    hi = pts[:, :2].max(axis=0) + hull_margin_m
+    cell = max(cell_m, float(np.max(hi - lo)) / max_cells, float(pts[:, 2].max()) / max_cells)
+
+    pad = 2
+    nx, ny = (np.ceil((hi - lo) / cell).astype(int) + 1 + 2 * pad)
+    x0, y0 = lo[0] - pad * cell, lo[1] - pad * cell
+    xs = x0 + cell * np.arange(nx)
+    ys = y0 + cell * np.arange(ny)
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    sdf = footprint_sdf(hull.equations, np.stack([gx, gy], axis=-1)) - hull_margin_m
+
+    top = _top_height_map(pts, x0, y0, nx, ny, cell)
+    known = np.isfinite(top)
+    if median_px > 1 and known.sum() > 9:
+        # clip isolated spikes (flying pixels) to the local median of observed cells
+        with warnings.catch_warnings():  # cells with no observed neighbour: NaN, fine
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = ndimage.generic_filter(top, np.nanmedian, size=median_px,
+                                         mode="constant", cval=np.nan)
+        top = np.where(known, np.minimum(top, med + 2 * cell), top)
+    top = _fill(top, known, xs, ys)
+
+    below = None
+    if below_points_world is not None and len(below_points_world):
+        below = transform_points(plane_from_world, below_points_world)
+    _, coef = _support_height(pts, below, hull.equations, margin_m=0.01)
+    if coef is None:
+        bottom = np.zeros_like(top)
+    else:
+        bottom = np.clip(coef[0] * gx + coef[1] * gy + coef[2], 0.0, None)
+    # keep at least two cells of material in every column
+    top = np.maximum(top, bottom + 2 * cell)
+
+    z0 = float(bottom.min()) - pad * cell
+    nz = int(np.ceil((top.max() - z0) / cell)) + pad + 1
+    zs = z0 + cell * np.arange(nz)
+    field = np.minimum.reduce([
+        np.broadcast_to(-sdf[:, :, None], (nx, ny, len(zs))),
+        top[:, :, None] - zs[None, None, :],
+        zs[None, None, :] - bottom[:, :, None],
+    ])
+    field = np.pad(field, 1, mode="constant", constant_values=-cell)
+    # a node exactly on the level set makes degenerate triangles: nudge it outside
+    field[np.abs(field) < 1e-6 * cell] = -1e-6 * cell
+    verts, faces, _, _ = marching_cubes(field, level=0.0, spacing=(cell, cell, cell),
+                                        gradient_direction="ascent")
+    verts += np.array([x0, y0, z0]) - cell
+    mesh = trimesh.Trimesh(verts, faces, process=False)
+    if mesh.volume < 0:
+        mesh.invert()
+
+    # object frame: plane axes, origin at the footprint centre on the mesh's base
+    centre = np.array([*(0.5 * (hull.points[hull.vertices].min(axis=0)
+                                + hull.points[hull.vertices].max(axis=0))),
+                       float(mesh.vertices[:, 2].min())])
+    mesh.apply_translation(-centre)
+    plane_from_object = np.eye(4)
+    plane_from_object[:3, 3] = centre
+    world_from_object = world_from_pl @ plane_from_object
+
+    if colors is not None:
+        cols = np.asarray(colors)[keep]
+        _, nn = cKDTree(pts - centre).query(mesh.vertices)
+        rgba = np.concatenate([cols[nn, :3], np.full((len(nn), 1), 255)], axis=1)
+        mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=rgba.astype(np.uint8))
+    return CompletedShape(mesh=mesh, world_from_object=world_from_object,
+                          bottom_m=float(centre[2]))

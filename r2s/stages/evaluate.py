@@ -1,0 +1,275 @@
+"""Stage ``evaluate``: judge ``export/`` in PyBullet (and against ``gt/`` where it exists).
+
+Reads only what an outside tool would: ``export/`` (SCENE_FORMAT.md), ``gt/`` and
+``input/camera.json`` (for the picture). Writes ``evaluate/metrics.json`` and
+``evaluate/rollout.png`` (first and last frame of the rollout seen by the input camera).
+
+Scene-level keys of metrics.json: ``stability_ratio``, ``settling_time_s``,
+``mean_linear_speed_mps``, ``mean_angular_speed_radps`` (rollout under gravity),
+``max_penetration_mm``, ``mean_penetration_mm``, ``floating_objects`` (before the rollout),
+``chamfer_mm``, ``fscore``, ``fscore_threshold_mm``, ``iou``, ``centroid_error_mm``,
+``rotation_error_deg`` (means over the objects matched by id with gt; null without gt;
+the rotation error only over objects whose export entry says ``"source": "prior"``), plus
+``objects`` (the same per object) and ``options``.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+import pybullet as pb
+from PIL import Image
+from pydantic import Field
+
+from r2s.console import ProgressFn
+from r2s.errors import StageError
+from r2s.io.atomic import atomic_write_bytes, atomic_write_json
+from r2s.io.input_scene import load_camera, load_masks, load_rgb
+from r2s.io.mesh_io import load_mesh
+from r2s.io.paths import ScenePaths
+from r2s.io.scene_json import ExportObject, GtScene, read_gt_scene
+from r2s.metrics.geometry import (centroid_error_mm, posed, rotation_error_deg, surface_metrics,
+                                  volumetric_iou)
+from r2s.metrics.penetration import (PYBULLET_MESH_MARGIN_M, SUPPORT_ID, PenetrationMetrics,
+                                     penetration_metrics, scene_distances)
+from r2s.metrics.rendering import render_scene_rgb, rendering_metrics, side_by_side_png
+from r2s.metrics.stability import object_stability, scene_stability
+from r2s.sim.pybullet_bodies import connect_direct
+from r2s.sim.pybullet_scene import LoadedScene, load_export_scene
+from r2s.sim.render import colour_bodies, render_rgb, scaled_intrinsics, side_by_side
+from r2s.sim.rollout import Trajectory, rollout
+from r2s.stages.base import StageContext, StageOptions, StageSpec
+from r2s.stages.manifest import Manifest
+
+SCENE_KEYS: tuple[str, ...] = (
+    "stability_ratio", "settling_time_s", "mean_linear_speed_mps", "mean_angular_speed_radps",
+    "max_penetration_mm", "mean_penetration_mm", "floating_objects",
+    "chamfer_mm", "fscore", "fscore_threshold_mm", "iou", "centroid_error_mm",
+    "rotation_error_deg", "psnr", "ssim", "lpips",
+)
+"""Scene-level keys of metrics.json (and of the stage summary)."""
+
+GEOMETRY_KEYS: tuple[str, ...] = ("chamfer_mm", "fscore", "iou", "centroid_error_mm",
+                                  "rotation_error_deg")
+
+
+class Options(StageOptions):
+    duration_s: float = Field(3.0, gt=0, description="Rollout length under gravity, seconds.")
+    rate_hz: float = Field(240.0, gt=0, description="PyBullet step rate, Hz.")
+    record_hz: float = Field(60.0, gt=0,
+                             description="Trajectory sampling rate for the metrics, Hz.")
+    stable_translation_m: float = Field(
+        0.05, gt=0, description="An object is stable if its COM moves less than this, metres.")
+    stable_rotation_deg: float = Field(
+        5.0, gt=0, description="... and it turns less than this, degrees.")
+    floating_gap_mm: float = Field(
+        2.0, ge=0, description="An object farther than this from every other body floats, mm.")
+    fscore_threshold_mm: float = Field(10.0, gt=0, description="F-score distance threshold, mm.")
+    geometry_samples: int = Field(
+        10000, ge=100, description="Surface / volume samples per object for CD, F-score, IoU.")
+    seed: int = Field(0, description="Seed of the geometry sampling.")
+    render: bool = Field(True, description="Write rollout.png (first and last frame).")
+    render_width_px: int = Field(
+        640, ge=32, description="Width of each frame of rollout.png (the camera image is scaled).")
+
+
+def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path]:  # noqa: ARG001
+    return [paths.export, paths.gt, paths.camera, paths.rgb, paths.masks]
+
+
+def _rendering(paths: ScenePaths, export_objects: list) -> tuple[dict, Optional[tuple]]:
+    """Rendering metrics of export/ at the input view, and (observed, rendered, object mask)."""
+    if not (paths.camera.is_file() and paths.rgb.is_file() and paths.masks.is_file()):
+        return ({"psnr": None, "ssim": None, "lpips": None,
+                 "lpips_reason": "no input view (input/rgb.png, masks.png, camera.json)"}, None)
+    cam, _ = load_camera(paths.camera)
+    observed = load_rgb(paths.rgb, cam.width, cam.height)
+    object_mask = load_masks(paths.masks, cam.width, cam.height) > 0
+    meshes = [load_mesh(paths.export / o.visual_mesh).apply_transform(np.asarray(o.world_from_object))
+              for o in export_objects]
+    rendered, _ = render_scene_rgb(meshes, cam, ids=[o.id for o in export_objects])
+    return rendering_metrics(observed, rendered, object_mask), (observed, rendered, object_mask)
+
+
+# ---- pieces of run() -------------------------------------------------------------------
+
+
+def _mean_or_none(values: list[Optional[float]]) -> Optional[float]:
+    vals = [v for v in values if v is not None and np.isfinite(v)]
+    return float(np.mean(vals)) if vals else None
+
+
+def _finite_or_none(value: Any) -> Any:
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def _source(obj: ExportObject) -> Optional[str]:
+    return (obj.model_extra or {}).get("source")
+
+
+def _geometry_of(paths: ScenePaths, obj: ExportObject, gt: GtScene, options: Options) -> dict:
+    """Geometry metrics of one export object against the gt object of the same id."""
+    empty: dict[str, Any] = {k: None for k in GEOMETRY_KEYS}
+    gt_obj = next((g for g in gt.objects if g.id == obj.id), None)
+    if gt_obj is None:
+        return empty
+    recon = posed(load_mesh(paths.export / obj.visual_mesh), np.asarray(obj.world_from_object))
+    truth = posed(load_mesh(paths.gt / gt_obj.mesh), np.asarray(gt_obj.world_from_object))
+    surf = surface_metrics(recon, truth, options.fscore_threshold_mm, options.geometry_samples,
+                           options.seed)
+    rot = None
+    if _source(obj) == "prior":
+        rot = rotation_error_deg(obj.world_from_object, gt_obj.world_from_object)
+    return {
+        "chamfer_mm": surf.chamfer_mm, "fscore": surf.fscore,
+        "precision": surf.precision, "recall": surf.recall,
+        "iou": volumetric_iou(recon, truth, options.geometry_samples, options.seed),
+        "centroid_error_mm": centroid_error_mm(recon, truth),
+        "rotation_error_deg": rot,
+    }
+
+
+def _camera(paths: ScenePaths, loaded: LoadedScene) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """(K, world_from_camera, width, height): the input camera, else a view of the objects."""
+    if paths.camera.is_file():
+        cam, _ = load_camera(paths.camera)
+        return cam.K, cam.world_from_camera, cam.width, cam.height
+    poses = loaded.initial_world_from_object()
+    target = poses[:, :3, 3].mean(axis=0) if len(poses) else np.zeros(3)
+    eye = target + np.array([0.6, -0.6, 0.6])
+    z = (target - eye) / np.linalg.norm(target - eye)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    world_from_camera = np.eye(4)
+    world_from_camera[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
+    world_from_camera[:3, 3] = eye
+    w, h = 640, 480
+    K = np.array([[w, 0, (w - 1) / 2], [0, w, (h - 1) / 2], [0, 0, 1.0]])
+    return K, world_from_camera, w, h
+
+
+def _frame(client: int, camera: tuple, width_px: int) -> np.ndarray:
+    K, world_from_camera, w, h = camera
+    scale = min(1.0, width_px / w)
+    return render_rgb(client, scaled_intrinsics(K, scale), world_from_camera,
+                      max(1, round(w * scale)), max(1, round(h * scale)))
+
+
+def _png_bytes(image: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(image).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+# ---- the stage -------------------------------------------------------------------------
+
+
+@dataclass
+class _Simulated:
+    """What the PyBullet part of the judge found."""
+
+    loaded: LoadedScene
+    pen: PenetrationMetrics
+    traj: Trajectory
+    frames: Optional[tuple[np.ndarray, np.ndarray]]
+
+
+def _simulate(paths: ScenePaths, options: Options, progress: ProgressFn) -> _Simulated:
+    """Load export/ into a fresh DIRECT client: penetration, first frame, rollout, last frame."""
+    client = connect_direct()
+    try:
+        loaded = load_export_scene(client, paths.export)
+        pen = penetration_metrics(scene_distances(client, loaded), options.floating_gap_mm)
+        first = None
+        if options.render:
+            camera = _camera(paths, loaded)
+            colour_bodies(client, loaded.body_ids, loaded.support_body)
+            first = _frame(client, camera, options.render_width_px)
+        progress("rollout", 0.1)
+        traj = rollout(client, loaded, options.duration_s, options.rate_hz, options.record_hz,
+                       progress=lambda m, f: progress(m, 0.1 + 0.3 * f))
+        frames = None
+        if options.render:
+            frames = (first, _frame(client, camera, options.render_width_px))
+    finally:
+        pb.disconnect(physicsClientId=client)
+    return _Simulated(loaded, pen, traj, frames)
+
+
+def _caption(sim: _Simulated, per_stab: list) -> str:
+    return (f"{sum(o.stable for o in per_stab)}/{len(per_stab)} objects stable after "
+            f"{sim.traj.duration_s:.1f} s  |  max penetration {sim.pen.max_penetration_mm:.1f} mm"
+            f"  |  {sim.pen.floating_objects} floating")
+
+
+def run(ctx: StageContext) -> dict:
+    paths, options, progress = ctx.paths, ctx.options, ctx.progress
+    if not paths.export_scene.is_file():
+        raise StageError(f"{paths.export_scene} is missing; run 'r2s export' first")
+
+    progress("loading export/", 0.0)
+    sim = _simulate(paths, options, progress)
+    pen, export_objects = sim.pen, sim.loaded.scene.objects
+    per_stab = object_stability(sim.traj, options.stable_translation_m, options.stable_rotation_deg)
+    gt = read_gt_scene(paths.gt_scene)
+
+    objects: list[dict] = []
+    for k, (obj, stab) in enumerate(zip(export_objects, per_stab)):
+        progress(f"geometry of object {obj.id}", 0.4 + 0.55 * k / len(export_objects))
+        entry: dict[str, Any] = {"id": obj.id, "label": obj.label, "source": _source(obj)}
+        entry.update(stab.as_dict())
+        entry.update(penetration_mm=float(pen.per_object_penetration_mm[k]),
+                     gap_mm=float(pen.per_object_gap_mm[k]), floating=bool(pen.floating[k]))
+        entry.update(_geometry_of(paths, obj, gt, options) if gt is not None
+                     else {key: None for key in GEOMETRY_KEYS})
+        objects.append(entry)
+
+    scene: dict[str, Any] = dict(scene_stability(per_stab))
+    scene.update(max_penetration_mm=pen.max_penetration_mm,
+                 mean_penetration_mm=pen.mean_penetration_mm,
+                 floating_objects=pen.floating_objects,
+                 fscore_threshold_mm=options.fscore_threshold_mm)
+    for key in GEOMETRY_KEYS:
+        scene[key] = _mean_or_none([o[key] for o in objects])
+    progress("rendering metrics", 0.96)
+    rendering, view = _rendering(paths, export_objects)
+    scene.update({k: rendering[k] for k in ("psnr", "ssim", "lpips")})
+    scene = {key: _finite_or_none(scene[key]) for key in SCENE_KEYS}
+
+    export_ids = {o.id for o in export_objects}
+    gt_ids = {o.id for o in gt.objects} if gt is not None else set()
+    atomic_write_json(ctx.out_dir / "metrics.json", {
+        "format": "r2s-metrics", "version": 1,
+        **scene,
+        "objects": objects,
+        "penetration": {
+            "object_max_penetration_mm": pen.object_max_penetration_mm,
+            "object_mean_penetration_mm": pen.object_mean_penetration_mm,
+            "penetrating_pairs": [{"id_a": a, "id_b": b, "depth_mm": d}
+                                  for a, b, d in pen.penetrating_pairs],
+            "support_id": SUPPORT_ID,
+            "pybullet_mesh_margin_m": PYBULLET_MESH_MARGIN_M,
+        },
+        "rendering": rendering,
+        "rollout": {"duration_s": sim.traj.duration_s, "samples": int(len(sim.traj.times_s))},
+        "gt": {"present": gt is not None, "matched_ids": sorted(export_ids & gt_ids),
+               "missing_in_export": sorted(gt_ids - export_ids)},
+        "options": options.model_dump(mode="json"),
+    })
+    if sim.frames is not None:
+        picture = side_by_side(list(sim.frames), ["t = 0 s", f"t = {sim.traj.duration_s:.1f} s"],
+                               _caption(sim, per_stab))
+        atomic_write_bytes(ctx.out_dir / "rollout.png", _png_bytes(picture))
+    if view is not None:
+        side_by_side_png(view[0], view[1], ctx.out_dir / "render.png", object_mask=view[2])
+    progress("done", 1.0)
+    return scene
+
+
+STAGE = StageSpec("evaluate", Options, inputs, run)

@@ -1,0 +1,285 @@
+"""The ``init`` stage: the initial reconstruction (the paper's "SAM3D+ICP" baseline).
+
+From ``input/`` alone: back-project the depth, fit the support plane on the pixels that
+belong to no object, then per object either register its prior mesh to the observed
+points (robust visibility-aware ICP with a free-space term and a bounded scale; a global
+search when no pose is given) or, without a prior, complete a closed mesh from the
+observation (height field over the support plane). No physics here: interpenetration and
+floating are left for the later stages to resolve.
+
+Object frames: a registered prior keeps its own axes, with the origin moved to the centre
+of its bounding box and the estimated scale applied to the mesh (``world_from_object`` is
+rigid); a completed object has the support plane's axes and its origin at the centre of
+its footprint, on its base. Extra keys per object in ``state.json``: ``icp_fitness``,
+``icp_rmse_m`` (for completed objects: of the observed points against the completed
+surface), ``scale``, ``observed_points``, ``num_observed_points``.
+
+Writes ``init/``: ``state.json``, ``meshes/<id>.glb`` (object frame, coloured),
+``points/<id>.npy`` (the object's observed points, world frame, float32 (N, 3)),
+``support_points.npy`` (a subsample of the support plane's points) and ``init.png`` (the
+fit drawn over the input image).
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import trimesh
+from PIL import Image
+from pydantic import Field
+from scipy import ndimage
+
+from r2s.errors import StageError
+from r2s.geometry.camera import backproject
+from r2s.geometry.colors import color_mesh_from_image, has_appearance
+from r2s.geometry.completion import complete_from_points
+from r2s.geometry.free_space import view_constraint
+from r2s.geometry.overlay import fit_overlay, render_instances
+from r2s.geometry.plane import PlaneFit, fit_plane_ransac, signed_distance
+from r2s.geometry.registration import (IcpOptions, RegistrationResult, register_prior,
+                                       surface_fit, voxel_downsample)
+from r2s.io.atomic import atomic_write_bytes
+from r2s.io.input_scene import InputScene, ObjectSpec, load_input
+from r2s.io.mesh_io import load_mesh, save_mesh
+from r2s.io.paths import ScenePaths
+from r2s.io.state import DEFAULT_GRAVITY, ObjectState, SceneState, SupportPlane, write_state
+from r2s.stages.base import StageContext, StageOptions, StageSpec
+from r2s.stages.manifest import Manifest
+
+SUPPORT_FRICTION = 0.8
+"""Friction written for the support plane (no stage before physopt estimates it)."""
+
+MIN_OBJECT_POINTS = 20
+
+
+class Options(StageOptions):
+    plane_threshold_m: float = Field(0.005, gt=0, description="RANSAC inlier distance of the "
+                                     "support plane fit.")
+    plane_iterations: int = Field(500, ge=10, description="RANSAC samples of the plane fit.")
+    plane_max_tilt_deg: Optional[float] = Field(
+        45.0, gt=0, le=90, description="Only planes within this angle of world +z are support "
+        "candidates (a wall is not a table); None = any.")
+    mask_erosion_px: int = Field(0, ge=0, description="Erode each instance mask by this many "
+                                 "pixels before back-projecting (drops mixed edge pixels; "
+                                 "the robust ICP loss already ignores most of them).")
+    voxel_size_m: float = Field(0.002, ge=0, description="Voxel size that evens out the "
+                                "observed points' density before registration (0 = off).")
+    icp_max_correspondence_m: float = Field(0.04, gt=0, description="Coarsest correspondence "
+                                            "distance of the ICP schedule (halved each level).")
+    icp_levels: int = Field(4, ge=1, description="Levels of the ICP distance schedule.")
+    icp_iterations: int = Field(15, ge=1, description="ICP iterations per level.")
+    icp_trim_fraction: float = Field(0.1, ge=0, lt=0.9, description="Fraction of the worst "
+                                     "correspondences dropped each ICP iteration.")
+    icp_inlier_m: float = Field(0.005, gt=0, description="Distance under which an observed "
+                                "point counts as explained (fitness, rmse).")
+    silhouette_weight: float = Field(1.0, ge=0, description="Weight of the free-space term: "
+                                     "the prior may not cover pixels where the camera sees "
+                                     "past it (0 = plain ICP).")
+    silhouette_margin_px: float = Field(1.5, gt=0, description="How far (pixels) outside "
+                                        "its mask a prior may project before the "
+                                        "free-space term pushes it back; raise it for "
+                                        "masks with uncertain edges.")
+    icp_yaw_hypotheses: int = Field(8, ge=1, description="With a given prior pose, also try "
+                                    "it turned about the support normal by 360/N degree "
+                                    "steps (1 = only the given pose).")
+    estimate_scale: bool = Field(True, description="Estimate an isotropic scale correction "
+                                 "of each prior with its pose.")
+    scale_min: float = Field(0.85, gt=0, le=1, description="Smallest allowed prior scale.")
+    scale_max: float = Field(1.15, ge=1, description="Largest allowed prior scale.")
+    scale_prior_weight: float = Field(0.0, ge=0, description="Pull of the scale towards 1 "
+                                      "(0 = none: the free-space term bounds it).")
+    global_fallback_fitness: float = Field(0.5, ge=0, le=1, description="Run the global pose "
+                                           "search too when ICP from the given prior pose "
+                                           "explains fewer observed points than this.")
+    completion_cell_m: float = Field(0.003, gt=0, description="Grid cell of the height-field "
+                                     "completion of objects without a prior.")
+    completion_hull_margin_px: float = Field(0.25, ge=0, description="Grow a completed "
+                                             "object's footprint by this many pixels' "
+                                             "footprint on the surface.")
+    support_points_max: int = Field(20000, ge=100, description="Most support-plane points "
+                                    "kept in support_points.npy.")
+    seed: int = Field(0, description="Random seed (RANSAC, subsampling).")
+
+
+def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path]:
+    return [paths.input]
+
+
+def _icp_options(o: Options) -> IcpOptions:
+    schedule = tuple(o.icp_max_correspondence_m / 2 ** k for k in range(o.icp_levels))
+    return IcpOptions(max_correspondence_m=schedule, iterations_per_level=o.icp_iterations,
+                      trim_fraction=o.icp_trim_fraction, estimate_scale=o.estimate_scale,
+                      scale_bounds=(o.scale_min, o.scale_max),
+                      scale_prior_weight=o.scale_prior_weight, inlier_m=o.icp_inlier_m,
+                      global_fallback_fitness=o.global_fallback_fitness,
+                      silhouette_weight=o.silhouette_weight,
+                      local_yaw_steps=o.icp_yaw_hypotheses, seed=o.seed)
+
+
+def _fit_support(scene: InputScene, o: Options) -> tuple[PlaneFit, np.ndarray]:
+    """The support plane and the (subsampled) mask-0 points it was fitted on."""
+    cam = scene.camera
+    points = backproject(scene.depth_m, cam.K, cam.world_from_camera, scene.masks == 0)
+    if len(points) < 100:
+        raise StageError("too few depth pixels outside the object masks to fit the support "
+                         f"plane ({len(points)}; need 100)")
+    rng = np.random.default_rng(o.seed)
+    if len(points) > 200000:
+        points = points[rng.choice(len(points), size=200000, replace=False)]
+    try:
+        fit = fit_plane_ransac(points, threshold_m=o.plane_threshold_m,
+                               iterations=o.plane_iterations, seed=o.seed,
+                               viewpoint=cam.world_from_camera[:3, 3],
+                               max_tilt_deg=o.plane_max_tilt_deg)
+    except ValueError as exc:
+        raise StageError(f"no support plane found: {exc}") from None
+    return fit, points
+
+
+def _object_points(scene: InputScene, obj_id: int, o: Options, plane: PlaneFit
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The instance's world points and their (row, col) pixels (mask optionally eroded;
+    points clearly below the support plane dropped)."""
+    cam = scene.camera
+    mask = scene.masks == obj_id
+    if o.mask_erosion_px > 0:
+        eroded = ndimage.binary_erosion(mask, iterations=o.mask_erosion_px)
+        if np.count_nonzero(eroded & np.isfinite(scene.depth_m)) >= MIN_OBJECT_POINTS:
+            mask = eroded
+    pts, pix = backproject(scene.depth_m, cam.K, cam.world_from_camera, mask,
+                           return_pixels=True)
+    keep = signed_distance(pts, plane.point, plane.normal) > -2 * o.plane_threshold_m
+    if keep.sum() >= MIN_OBJECT_POINTS:
+        pts, pix = pts[keep], pix[keep]
+    return pts, pix
+
+
+def _register(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, plane: PlaneFit,
+              o: Options) -> tuple[trimesh.Trimesh, np.ndarray, RegistrationResult]:
+    """The prior in its object frame (recentred, scaled, coloured) and its pose."""
+    cam = scene.camera
+    prior = load_mesh(spec.prior_mesh)
+    view = view_constraint(cam.K, cam.world_from_camera, scene.depth_m, scene.masks == spec.id,
+                           margin_px=o.silhouette_margin_px)
+    reg_pts = voxel_downsample(pts, o.voxel_size_m)
+    if len(reg_pts) < MIN_OBJECT_POINTS:
+        reg_pts = pts
+    try:
+        result = register_prior(prior, reg_pts, spec.world_from_prior, view=view,
+                                up=plane.normal, options=_icp_options(o))
+    except ValueError as exc:
+        raise StageError(f"object {spec.id}: registration failed ({exc})") from None
+    # object frame: the prior's axes, origin at its bounding-box centre, scale applied
+    centre = 0.5 * (prior.vertices.min(axis=0) + prior.vertices.max(axis=0))
+    mesh = prior.copy()
+    mesh.apply_translation(-centre)
+    mesh.apply_scale(result.scale)
+    world_from_object = result.world_from_object.copy()
+    world_from_object[:3, 3] += world_from_object[:3, :3] @ (result.scale * centre)
+    if not has_appearance(mesh):
+        mesh = color_mesh_from_image(mesh, world_from_object, scene.rgb, scene.depth_m, cam.K,
+                                     cam.world_from_camera, scene.masks == spec.id)
+    return mesh, world_from_object, result
+
+
+def _complete(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, pix: np.ndarray,
+              others: Optional[np.ndarray], plane: PlaneFit, o: Options
+              ) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """A closed, coloured mesh completed from the observation (object frame) and its pose;
+    ``others`` are the other objects' points (what the object may stand on)."""
+    cam = scene.camera
+    depth = scene.depth_m[pix[:, 0], pix[:, 1]]
+    pixel_m = float(np.median(depth)) / float(cam.K[0, 0])
+    try:
+        shape = complete_from_points(pts, plane.point, plane.normal,
+                                     colors=scene.rgb[pix[:, 0], pix[:, 1]],
+                                     cell_m=o.completion_cell_m, below_points_world=others,
+                                     hull_margin_m=o.completion_hull_margin_px * pixel_m)
+    except ValueError as exc:
+        raise StageError(f"object {spec.id}: completion failed ({exc})") from None
+    return shape.mesh, shape.world_from_object
+
+
+def _png_bytes(image: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    Image.fromarray(image).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def run(ctx: StageContext) -> dict:
+    o: Options = ctx.options
+    scene = load_input(ctx.paths.root)
+    cam = scene.camera
+    ctx.progress("support plane", 0.0)
+    plane, plane_points = _fit_support(scene, o)
+    out = ctx.out_dir
+    (out / "meshes").mkdir(parents=True, exist_ok=True)
+    (out / "points").mkdir(parents=True, exist_ok=True)
+
+    support = plane_points[plane.inliers]
+    if len(support) > o.support_points_max:
+        rng = np.random.default_rng(o.seed)
+        support = support[np.sort(rng.choice(len(support), o.support_points_max, replace=False))]
+    np.save(out / "support_points.npy", support.astype(np.float32))
+
+    observed = {spec.id: _object_points(scene, spec.id, o, plane) for spec in scene.objects}
+    objects: list[ObjectState] = []
+    posed: list[trimesh.Trimesh] = []
+    rmses: list[float] = []
+    n = len(scene.objects)
+    for k, spec in enumerate(scene.objects):
+        ctx.progress(f"object {spec.id}", k / max(n, 1))
+        pts, pix = observed[spec.id]
+        if spec.prior_mesh is not None:
+            mesh, world_from_object, reg = _register(scene, spec, pts, plane, o)
+            source, fitness, rmse, scale = "prior", reg.fitness, reg.rmse_m, reg.scale
+            rmses.append(rmse)
+        else:
+            others = [observed[j][0] for j in observed if j != spec.id]
+            mesh, world_from_object = _complete(
+                scene, spec, pts, pix, np.concatenate(others) if others else None, plane, o)
+            source, scale = "completed", 1.0
+            mesh_w = mesh.copy()
+            mesh_w.apply_transform(world_from_object)
+            fitness, rmse = surface_fit(mesh_w, pts, o.icp_inlier_m, seed=o.seed)
+        save_mesh(mesh, out / "meshes" / f"{spec.id}.glb")
+        np.save(out / "points" / f"{spec.id}.npy", pts.astype(np.float32))
+        mesh_w = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+        mesh_w.apply_transform(world_from_object)
+        posed.append(mesh_w)
+        objects.append(ObjectState(
+            id=spec.id, label=spec.label, mesh=f"meshes/{spec.id}.glb",
+            world_from_object=world_from_object.tolist(), source=source,
+            icp_fitness=round(float(fitness), 6),
+            icp_rmse_m=float(rmse) if np.isfinite(rmse) else None, scale=float(scale),
+            observed_points=f"points/{spec.id}.npy", num_observed_points=int(len(pts)),
+        ))
+
+    ctx.progress("overlay", 0.95)
+    rendered = render_instances(posed, cam.K, cam.world_from_camera, cam.width, cam.height)
+    atomic_write_bytes(out / "init.png",
+                       _png_bytes(fit_overlay(scene.rgb, rendered, scene.masks, scene.ids,
+                                              zoom_to_px=1000)))
+    write_state(out, SceneState(
+        stage="init", gravity=list(DEFAULT_GRAVITY),
+        support=SupportPlane(point=[float(v) for v in plane.point],
+                             normal=[float(v) for v in plane.normal],
+                             friction=SUPPORT_FRICTION),
+        objects=objects,
+    ))
+    ctx.progress("done", 1.0)
+    finite = [r for r in rmses if np.isfinite(r)]
+    fitnesses = [float(ob.icp_fitness) for ob in objects]
+    return {
+        "objects": n,
+        "completed": sum(1 for ob in objects if ob.source == "completed"),
+        "mean_icp_rmse_mm": round(1000 * float(np.mean(finite)), 3) if finite else None,
+        "min_fitness": round(min(fitnesses), 4) if fitnesses else None,
+        "support_inlier_fraction": round(float(plane.inliers.mean()), 4),
+    }
+
+
+STAGE = StageSpec("init", Options, inputs, run)

@@ -1,0 +1,320 @@
+#!/usr/bin/env python
+"""Benchmark of ``r2s diagnose``: inject each effect with ``r2s synth``, see if it is found.
+
+For every case (an effect at a realistic size, or none) and seed: synthesise a YCB scene
+with the effect recorded only in gt/, run the pipeline stages, run ``diagnose`` (which
+reruns the affected stages on a copy with the effect in the model), and tabulate: was the
+effect named first, the fitted size against the injected one, and the ground-truth error
+before -> after. Friction is only identifiable from an interaction, so its scenes get an
+observed push (``input/interaction/push.json``) simulated on the ground truth.
+
+Usage (regenerates the table in docs/diagnose.md between its bench markers):
+  python scripts/bench_diagnose.py --seeds 1 --clean 2 --out docs/diagnose.md
+Scenes live in bench/diagnose/<case>_s<seed> and are reused; per-scene results are kept
+in <scene>/bench_diagnose.json, so ``--table-only`` rebuilds the table without running.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import time
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from r2s.io.paths import ScenePaths  # noqa: E402
+from r2s.pipeline import build_options  # noqa: E402
+from r2s.stages.base import run_stage  # noqa: E402
+from r2s.stages.registry import available, get_stage  # noqa: E402
+
+CASES: dict[str, tuple[dict[str, str], Optional[str]]] = {
+    "clean": ({}, None),
+    "depth_scale": ({"depth_scale": "1.03"}, "depth_scale"),
+    "depth_offset": ({"depth_offset_m": "0.01"}, "depth_offset"),
+    "camera_rotation": ({"camera_rotation_deg": "2.5"}, "camera_rotation"),
+    "table_tilt": ({"table_tilt_deg": "2.5"}, "table_tilt"),
+    "com_offset": ({"com_offset_m": "0.02"}, "com_offset"),
+    "friction": ({"friction": "0.3"}, "friction"),
+}
+"""case -> (synth effects, the effect diagnose should name first)."""
+
+BEGIN, END = "<!-- bench_diagnose:begin -->", "<!-- bench_diagnose:end -->"
+
+
+# ---- scenes ------------------------------------------------------------------------------
+
+def make_scene(root: Path, case: str, seed: int, count: int) -> Path:
+    from r2s.synth.generate import SynthOptions, synthesize
+
+    scene = root / f"{case}_s{seed}"
+    if not (scene / "gt" / "scene.json").is_file():
+        t0 = time.perf_counter()
+        synthesize(scene, SynthOptions(objects="ycb", count=count, seed=1000 + seed,
+                                       effects=CASES[case][0]))
+        print(f"synth {scene.name}: {time.perf_counter() - t0:.0f} s", flush=True)
+    if case == "friction" and not (scene / "input" / "interaction" / "push.json").is_file():
+        write_observed_push(scene)
+    return scene
+
+
+def write_observed_push(scene: Path) -> None:
+    """Simulate a strike at one object of the ground truth and record what moved.
+
+    The struck object is the one on the table whose push moves it most while moving the
+    others least (a push that topples a stack says little about friction).
+    """
+    from r2s.diagnose.data import PhysicsModel
+    from r2s.diagnose.measure.interaction import plan_push, simulate_push
+    from r2s.diagnose.measure.observe import ObjectModel, world_spec
+    from r2s.io.mesh_io import load_mesh
+    from r2s.io.scene_json import read_gt_scene
+
+    paths = ScenePaths(scene)
+    gt = read_gt_scene(paths.gt_scene)
+    extra = gt.model_extra or {}
+    visible = {o.id for o in gt.objects if (o.model_extra or {}).get("in_input", True)}
+    stacked = set((extra.get("contacts") or {}).get("stacked_ids", []))
+    objects = [ObjectModel(o.id, o.label, load_mesh(paths.gt / o.mesh),
+                           np.asarray(o.world_from_object), None, o.mass_kg,
+                           np.asarray(o.com_in_object), o.friction) for o in gt.objects]
+    spec = world_spec(objects, gt.support.point, gt.support.normal, gt.support.friction,
+                      paths.root / ".cache" / "convex")
+    camera = np.asarray(extra["camera"]["world_from_camera"])[:3, 3]
+    up = -np.asarray(gt.gravity) / np.linalg.norm(gt.gravity)
+    best = None
+    for body in spec.bodies:
+        if body.id in stacked or body.id not in visible:
+            continue
+        com = body.world_from_object[:3, :3] @ body.com_in_object + body.world_from_object[:3, 3]
+        push = plan_push(com, body.radius_m, camera, up)
+        moved = simulate_push(spec, PhysicsModel(gravity=np.asarray(gt.gravity)), push)
+        own = float(np.linalg.norm(moved[body.id]))
+        others = max([float(np.linalg.norm(v)) for i, v in moved.items() if i != body.id] or [0])
+        score = own - 5.0 * others
+        if best is None or score > best[0]:
+            best = (score, push, {i: v for i, v in moved.items() if i in visible}, body.id)
+    if best is None:
+        raise SystemExit(f"{scene}: no object on the table to push")
+    out = paths.interaction / "push.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    data = best[1].to_json(best[2])
+    data["pushed_id"] = best[3]
+    out.write_text(json.dumps(data, indent=1))
+
+
+def run_pipeline(scene: Path, stages: list[str]) -> None:
+    for name in stages:
+        if not available(name):
+            continue
+        spec = get_stage(name)
+        t0 = time.perf_counter()
+        res = run_stage(spec, scene, build_options(spec, None, {}), force=False)
+        if res.ran:
+            print(f"  {scene.name} {name}: {time.perf_counter() - t0:.0f} s", flush=True)
+
+
+# ---- one row -----------------------------------------------------------------------------
+
+def injected_size(case: str, injected: dict) -> tuple[Optional[float], str]:
+    """The injected size in the units diagnose fits (observable part where it matters)."""
+    rec = injected.get({"depth_scale": "depth_scale", "depth_offset": "depth_offset_m",
+                        "camera_rotation": "camera_rotation_deg",
+                        "table_tilt": "table_tilt_deg", "com_offset": "com_offset_m",
+                        "friction": "friction"}.get(case, ""), None)
+    if rec is None:
+        return None, ""
+    if case == "camera_rotation":
+        true = np.asarray(rec["true_world_from_camera"])[:3, :3]
+        written = np.asarray(rec["written_world_from_camera"])[:3, :3]
+        q = written @ true.T  # the declared world = q (true world) about the camera
+        tilt = np.degrees(np.arccos(np.clip((q @ [0, 0, 1.0])[2], -1, 1)))
+        return float(tilt), f"{rec['value']} deg (tilting part {tilt:.2f})"
+    if case == "com_offset":
+        dist = [o["distance_m"] for o in rec.get("objects", [])]
+        return (float(dist[0]) if dist else None), f"{rec['value']} m (applied {dist})"
+    return float(rec["value"]), str(rec["value"])
+
+
+def fitted_size(case: str, chosen: Optional[dict], report: dict) -> Optional[float]:
+    if chosen is None:
+        return None
+    params = chosen["params"]
+    if case == "depth_scale":
+        return params.get("scale")
+    if case == "depth_offset":
+        return params.get("offset_m")
+    if case in ("camera_rotation", "table_tilt"):
+        return params.get("angle_deg")
+    if case == "com_offset":
+        shifts = [np.linalg.norm(e["shift_world_m"]) for e in params.get("objects", {}).values()]
+        return float(max(shifts)) if shifts else None
+    if case == "friction":
+        mus = [e["friction"] for e in params.get("objects", {}).values()]
+        return float(mus[0]) if mus else None
+    return None
+
+
+def size_error(case: str, fitted: Optional[float], truth: Optional[float]) -> Optional[float]:
+    """Relative error of the effect's size (for a depth scale: of s - 1)."""
+    if fitted is None or truth is None:
+        return None
+    if case == "depth_scale":
+        return abs(fitted - truth) / abs(truth - 1.0)
+    return abs(fitted - truth) / abs(truth)
+
+
+def headline_error(case: str, gt: dict, injected: dict, pushed: Optional[int] = None
+                   ) -> tuple[str, Any]:
+    """The ground-truth error the case's effect should reduce."""
+    if case == "camera_rotation":
+        return "support normal err (deg)", gt.get("state_support_normal_error_deg")
+    if case == "table_tilt":
+        return "table-gravity err (deg)", gt.get("table_gravity_error_deg")
+    if case == "com_offset":
+        ids = [o["id"] for o in injected.get("com_offset_m", {}).get("objects", [])]
+        errs = [o["com_error_mm"] for o in gt.get("objects", []) if o["id"] in ids]
+        return "COM err of shifted obj (mm)", errs[0] if errs else None
+    if case == "friction":
+        errs = [abs(o["friction"] - o["gt_friction"]) for o in gt.get("objects", [])
+                if o["id"] == pushed]
+        return "friction err of pushed obj", errs[0] if errs else None
+    return "pose err, median (mm)", gt.get("state_centroid_error_median_mm")
+
+
+def row(scene: Path, case: str, seed: int, seconds: float) -> dict:
+    report = json.loads((scene / "diagnose" / "report.json").read_text())
+    gt = report.get("gt_errors") or {}
+    before, after = gt.get("before") or {}, gt.get("after") or {}
+    injected = before.get("injected_effects") or {}
+    expected = CASES[case][1]
+    chosen = report["chosen"][0] if report["chosen"] else None
+    truth, truth_text = injected_size(case, injected)
+    fitted = fitted_size(case, chosen if chosen and chosen["effect"] == expected else None,
+                         report)
+    push_file = scene / "input" / "interaction" / "push.json"
+    pushed = json.loads(push_file.read_text()).get("pushed_id") if push_file.is_file() else None
+    name, err_before = headline_error(case, before, injected, pushed)
+    _, err_after = headline_error(case, after, injected, pushed) if after else (name, None)
+    ranking = [f for f in report["ranking"][0] if f["identifiable"]][:3]
+    return {
+        "scene": scene.name, "case": case, "seed": seed, "expected": expected,
+        "injected": truth_text, "decision": report["decision"],
+        "named_first": (report["decision"][:1] == [expected]) if expected else
+        (report["decision"] == []),
+        "ties": report["ties"][0] if report["ties"] else [],
+        "ranking": [(f["effect"], round(f["delta_bic"], 1)) for f in ranking],
+        "fitted": fitted, "truth": truth, "size_error": size_error(case, fitted, truth),
+        "error_name": name, "error_before": err_before, "error_after": err_after,
+        "centroid_before": before.get("centroid_error_mm"),
+        "centroid_after": after.get("centroid_error_mm"),
+        "chamfer_before": before.get("chamfer_mm"), "chamfer_after": after.get("chamfer_mm"),
+        "stability_before": before.get("stability_ratio"),
+        "stability_after": after.get("stability_ratio"),
+        "residual_before": report["residual_total"]["before"],
+        "residual_after": report["residual_total"]["after"],
+        "rerun": report["rerun"]["stages"], "seconds": seconds,
+    }
+
+
+# ---- table -------------------------------------------------------------------------------
+
+def _f(v: Any, fmt: str = "{:.3g}") -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return fmt.format(v)
+    return str(v)
+
+
+def table(rows: list[dict]) -> str:
+    lines = [
+        "| case (seed) | injected | named first | top of ranking (delta BIC) | fitted | "
+        "size err | headline gt error: before -> after | centroid mm | CD mm | stability | "
+        "residual SSE |",
+        "| --- | --- | :---: | --- | --- | ---: | --- | --- | --- | --- | --- |",
+    ]
+    for r in rows:
+        top = ", ".join(f"{n} {b}" for n, b in r["ranking"][:2])
+        named = "yes" if r["named_first"] else f"no ({', '.join(r['decision']) or 'none'})"
+        if r["ties"] and r["decision"]:
+            named += f"; tie {'/'.join(r['ties'])}"
+        lines.append(
+            f"| {r['case']} ({r['seed']}) | {r['injected'] or '-'} | {named} | {top} | "
+            f"{_f(r['fitted'], '{:.4g}')} | "
+            f"{_f(None if r['size_error'] is None else 100 * r['size_error'], '{:.0f}')}"
+            f"{'' if r['size_error'] is None else ' %'} | "
+            f"{r['error_name']}: {_f(r['error_before'])} -> {_f(r['error_after'])} | "
+            f"{_f(r['centroid_before'])} -> {_f(r['centroid_after'])} | "
+            f"{_f(r['chamfer_before'])} -> {_f(r['chamfer_after'])} | "
+            f"{_f(r['stability_before'], '{:.2f}')} -> {_f(r['stability_after'], '{:.2f}')} | "
+            f"{_f(r['residual_before'], '{:.1f}')} -> {_f(r['residual_after'], '{:.1f}')} |")
+    found = [r for r in rows if r["expected"]]
+    clean = [r for r in rows if not r["expected"]]
+    lines.append("")
+    lines.append(f"Effects named first: {sum(r['named_first'] for r in found)}/{len(found)}; "
+                 f"fitted within 25 %: {sum(1 for r in found if r['size_error'] is not None and r['size_error'] <= 0.25)}/{len(found)}; "
+                 f"clean scenes with no effect: {sum(r['named_first'] for r in clean)}/{len(clean)}.")
+    return "\n".join(lines) + "\n"
+
+
+def write_doc(path: Path, text: str, command: str) -> None:
+    block = f"{BEGIN}\n<!-- generated by: {command} -->\n{text}{END}"
+    doc = path.read_text() if path.is_file() else f"# r2s diagnose\n\n{BEGIN}\n{END}\n"
+    if BEGIN in doc and END in doc:
+        doc = re.sub(re.escape(BEGIN) + ".*?" + re.escape(END), lambda _: block, doc,
+                     flags=re.S)
+    else:
+        doc += "\n" + block + "\n"
+    path.write_text(doc)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--root", type=Path, default=REPO / "bench" / "diagnose")
+    ap.add_argument("--cases", default=",".join(c for c in CASES if c != "clean"))
+    ap.add_argument("--seeds", type=int, default=1, help="scenes per injected effect")
+    ap.add_argument("--clean", type=int, default=2, help="clean scenes")
+    ap.add_argument("--count", type=int, default=5, help="objects per scene")
+    ap.add_argument("--stages", default="init,graph,geomopt,export,evaluate",
+                    help="pipeline stages run before diagnose")
+    ap.add_argument("--table-only", action="store_true", help="only rebuild the table")
+    ap.add_argument("--out", type=Path, default=None, help="markdown file to update")
+    args = ap.parse_args()
+
+    jobs = [("clean", s) for s in range(args.clean)]
+    jobs += [(c, s) for c in args.cases.split(",") if c for s in range(args.seeds)]
+    rows = []
+    for case, seed in jobs:
+        scene = args.root / f"{case}_s{seed}"
+        result = scene / "bench_diagnose.json"
+        if not args.table_only:
+            t0 = time.perf_counter()
+            scene = make_scene(args.root, case, seed, args.count)
+            run_pipeline(scene, args.stages.split(","))
+            diagnose = get_stage("diagnose")
+            run_stage(diagnose, scene, build_options(diagnose, None, {}), force=True)
+            r = row(scene, case, seed, time.perf_counter() - t0)
+            result.write_text(json.dumps(r, indent=1))
+            print(f"{scene.name}: {r['decision']} fitted {r['fitted']} "
+                  f"({r['error_name']} {r['error_before']} -> {r['error_after']}) "
+                  f"{r['seconds']:.0f} s", flush=True)
+        if result.is_file():
+            rows.append(json.loads(result.read_text()))
+    text = table(rows)
+    print(text)
+    if args.out:
+        command = "python scripts/bench_diagnose.py " + " ".join(
+            a for a in sys.argv[1:] if a != "--table-only")
+        write_doc(args.out, text, command)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,150 @@
+"""Completion without a prior: ray-cast partial views of known solids."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from scipy import ndimage
+
+from helpers_init import SynthObject, pose, render_view, rotation
+from r2s.geometry.camera import backproject, intrinsics, look_at
+from r2s.geometry.completion import complete_from_points, footprint_sdf
+from r2s.geometry.raycast import raycast_view
+
+W, H = 160, 120
+K = intrinsics(W, H, 50.0)
+# 45 degrees of elevation, about 0.42 m from the objects
+CAMERA = look_at([0.21, -0.21, 0.30], [0.0, 0.0, 0.03])
+
+
+def _observe(objects: list[SynthObject], obj_id: int):
+    rgb, depth, masks = render_view(objects, K, CAMERA, W, H)
+    pts, pix = backproject(depth, K, CAMERA, masks == obj_id, return_pixels=True)
+    margin = 0.25 * float(np.median(depth[masks == obj_id])) / K[0, 0]
+    return pts, rgb[pix[:, 0], pix[:, 1]], margin
+
+
+def _solid(mesh: trimesh.Trimesh, yaw_deg: float, xy=(0.01, 0.02)) -> SynthObject:
+    return SynthObject(1, mesh, pose([xy[0], xy[1], -mesh.bounds[0, 2]],
+                                     rotation([0, 0, 1], yaw_deg)), color=(40, 160, 220))
+
+
+@pytest.mark.parametrize("shape", ["box", "cylinder"])
+def test_box_and_cylinder_volumes(shape: str):
+    mesh = (trimesh.creation.box((0.08, 0.12, 0.06)) if shape == "box"
+            else trimesh.creation.cylinder(0.035, 0.1, sections=96))
+    obj = _solid(mesh, 30.0)
+    pts, colors, margin = _observe([obj], 1)
+    done = complete_from_points(pts, [0, 0, 0], [0, 0, 1], colors=colors, hull_margin_m=margin)
+    assert done.mesh.is_watertight and done.mesh.is_winding_consistent
+    assert abs(done.mesh.volume / mesh.volume - 1.0) < 0.15
+    world = done.mesh.copy()
+    world.apply_transform(done.world_from_object)
+    truth = mesh.copy()
+    truth.apply_transform(obj.world_from_object)
+    assert np.linalg.norm(world.center_mass - truth.center_mass) < 0.005
+    np.testing.assert_allclose(world.bounds[:, 2], truth.bounds[:, 2], atol=0.004)
+    # object frame: plane axes, origin at the footprint centre on the base
+    assert abs(done.mesh.vertices[:, 2].min()) < 1e-6
+    assert done.bottom_m == pytest.approx(0, abs=1e-6)
+    np.testing.assert_allclose(done.world_from_object[:3, :3], np.eye(3), atol=1e-9)
+    assert done.mesh.visual.kind == "vertex"
+    vc = done.mesh.visual.vertex_colors[:, :3].astype(float)
+    assert np.abs(vc.mean(axis=0) - [40, 160, 220]).max() < 60  # shaded object colour
+
+
+def test_bowl_keeps_its_dip():
+    profile = [(0.0, 0.0), (0.05, 0.0), (0.065, 0.045), (0.06, 0.045), (0.045, 0.008),
+               (0.0, 0.008)]
+    bowl = trimesh.creation.revolve(np.array(profile), sections=96)
+    obj = _solid(bowl, 0.0, xy=(0.0, 0.0))
+    pts, colors, margin = _observe([obj], 1)
+    done = complete_from_points(pts, [0, 0, 0], [0, 0, 1], hull_margin_m=margin)
+    assert done.mesh.is_watertight
+    world = done.mesh.copy()
+    world.apply_transform(done.world_from_object)
+    # cast rays straight down: the rim is tall, the middle is low
+    origins = np.array([[0.0, 0.0, 0.2], [0.0, 0.06, 0.2], [0.0, -0.06, 0.2]])
+    depth, index, _ = _down_rays(world, origins)
+    heights = 0.2 - depth
+    assert heights[0] < 0.02          # the dip (true inside bottom: 8 mm)
+    assert heights[1] > 0.035         # the far rim, seen
+    assert heights[2] > 0.02          # the near rim, hidden inside, interpolated
+
+
+def _down_rays(mesh: trimesh.Trimesh, origins: np.ndarray):
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    tm = o3d.t.geometry.TriangleMesh()
+    tm.vertex.positions = o3d.core.Tensor(np.asarray(mesh.vertices, np.float32))
+    tm.triangle.indices = o3d.core.Tensor(np.asarray(mesh.faces, np.int32))
+    scene.add_triangles(tm)
+    rays = np.concatenate([origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1))], axis=1)
+    ans = scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)))
+    return ans["t_hit"].numpy(), ans["geometry_ids"].numpy(), ans["primitive_ids"].numpy()
+
+
+def test_object_on_another_object_stands_on_it():
+    lower = trimesh.creation.box((0.14, 0.14, 0.04))
+    upper = trimesh.creation.box((0.05, 0.05, 0.03))
+    objs = [SynthObject(1, upper, pose([0.0, 0.0, 0.055])),
+            SynthObject(2, lower, pose([0.0, 0.0, 0.02]), color=(90, 90, 90))]
+    _, depth, masks = render_view(objs, K, CAMERA, W, H)
+    pts = backproject(depth, K, CAMERA, masks == 1)
+    below = backproject(depth, K, CAMERA, masks == 2)
+    done = complete_from_points(pts, [0, 0, 0], [0, 0, 1], below_points_world=below)
+    assert done.bottom_m == pytest.approx(0.04, abs=0.004)
+    assert abs(done.mesh.volume / upper.volume - 1.0) < 0.2
+    alone = complete_from_points(pts, [0, 0, 0], [0, 0, 1])
+    assert alone.bottom_m == pytest.approx(0.0, abs=1e-6)  # without: down to the table
+
+
+def test_tilted_support_plane():
+    """Everything tilted by 20 degrees: the mesh is built in the plane's frame."""
+    tilt = pose(rot=rotation([1, 0, 0], 20.0))
+    box = trimesh.creation.box((0.08, 0.06, 0.05))
+    obj = SynthObject(1, box, tilt @ pose([0.0, 0.0, 0.025]))
+    table = trimesh.creation.box((1.0, 1.0, 0.02))
+    table.apply_transform(tilt @ pose([0.0, 0.0, -0.01]))
+    cam = tilt @ CAMERA
+    depth, index, _ = raycast_view([obj.mesh.copy().apply_transform(obj.world_from_object),
+                                    table], K, cam, W, H)
+    pts = backproject(depth, K, cam, index == 0)
+    normal = tilt[:3, 2]
+    done = complete_from_points(pts, [0, 0, 0], normal)
+    assert done.mesh.is_watertight
+    assert abs(done.mesh.volume / box.volume - 1.0) < 0.15
+    np.testing.assert_allclose(done.world_from_object[:3, 2], normal, atol=1e-9)
+
+
+def test_footprint_sdf_of_a_square():
+    eq = np.array([[1.0, 0, -1], [-1.0, 0, -1], [0, 1.0, -1], [0, -1.0, -1]])  # |x|,|y| <= 1
+    xy = np.array([[0.0, 0.0], [0.5, 0.0], [1.0, 0.3], [2.0, 0.0]])
+    np.testing.assert_allclose(footprint_sdf(eq, xy), [-1.0, -0.5, 0.0, 1.0])
+
+
+def test_degenerate_input_is_an_error():
+    with pytest.raises(ValueError):
+        complete_from_points(np.zeros((5, 3)), [0, 0, 0], [0, 0, 1])
+    line = np.c_[np.linspace(0, 0.1, 50), np.zeros(50), np.full(50, 0.02)]
+    with pytest.raises(ValueError):
+        complete_from_points(line, [0, 0, 0], [0, 0, 1])
+
+
+def test_flying_pixels_do_not_stretch_the_footprint():
+    """Mixed pixels along the box's silhouette, smeared towards the table behind it."""
+    box = trimesh.creation.box((0.08, 0.12, 0.06))
+    obj = _solid(box, 30.0)
+    _, depth, masks = render_view([obj], K, CAMERA, W, H)
+    edge = (masks == 1) & ~ndimage.binary_erosion(masks == 1)
+    rng = np.random.default_rng(0)
+    smeared = depth.copy()
+    far = edge & (rng.random(edge.shape) < 0.5)
+    smeared[far] += rng.uniform(0.02, 0.15, size=far.sum())  # between the box and the table
+    pts = backproject(smeared, K, CAMERA, masks == 1)
+    done = complete_from_points(pts, [0, 0, 0], [0, 0, 1])
+    assert abs(done.mesh.volume / box.volume - 1.0) < 0.15
+    raw = complete_from_points(pts, [0, 0, 0], [0, 0, 1], outlier_factor=0.0)
+    assert raw.mesh.volume > 1.2 * box.volume  # what the filter prevents
