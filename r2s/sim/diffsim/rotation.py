@@ -13,7 +13,8 @@ import torch
 EPS = 1e-12
 
 
-def safe_norm(x: torch.Tensor, dim: int = -1, keepdim: bool = False, eps: float = EPS) -> torch.Tensor:
+def safe_norm(x: torch.Tensor, dim: int = -1, keepdim: bool = False,
+              eps: float = EPS) -> torch.Tensor:
     """``sqrt(|x|^2 + eps^2)``: a norm whose gradient is finite at ``x = 0``."""
     return torch.sqrt((x * x).sum(dim=dim, keepdim=keepdim) + eps * eps)
 

@@ -1,9 +1,14 @@
 """Differentiable look-up of a signed distance grid (trilinear), for the simulator's obstacles.
 
-Grid convention: ``values[i, j, k]`` is the signed distance (metres, negative inside) at the
-grid node ``origin + voxel_size_m * (i, j, k)`` in the obstacle's object frame. A point
-outside the grid box is clamped onto it and the clamping distance is added, so far points
-read a positive distance that grows with the distance to the grid.
+Grid convention (the project's, :class:`r2s.geometry.sdf.SdfGrid`): ``values[i, j, k]`` is
+the signed distance (metres, negative inside) at the voxel centre
+``origin + voxel_size_m * (i, j, k)`` in the obstacle's object frame. A point outside the
+grid box is clamped onto it and the clamping distance is added, so far points read a
+positive distance that grows with the distance to the grid.
+
+Cubic grids go through the project's shared :func:`r2s.geometry.sdf_torch.sdf_lookup`
+(same convention); :func:`trilinear_sdf` is this package's own version, used for
+non-cubic grids and when the shared module is unavailable. The two agree to rounding.
 """
 
 from __future__ import annotations
@@ -12,6 +17,8 @@ import torch
 
 from r2s.sim.diffsim.rotation import safe_norm
 
+_CORNERS = torch.tensor([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+
 
 def trilinear_sdf(values: torch.Tensor, origin: torch.Tensor, voxel_size_m: float,
                   points: torch.Tensor) -> torch.Tensor:
@@ -19,9 +26,9 @@ def trilinear_sdf(values: torch.Tensor, origin: torch.Tensor, voxel_size_m: floa
 
     Parameters
     ----------
-    values : (X, Y, Z) signed distances at the grid nodes, metres.
-    origin : (3,) position of node (0, 0, 0), same frame as ``points``.
-    voxel_size_m : node spacing.
+    values : (X, Y, Z) signed distances at the voxel centres, metres.
+    origin : (3,) position of voxel [0, 0, 0]'s centre, same frame as ``points``.
+    voxel_size_m : spacing of the voxel centres.
     points : (N, 3) query points.
 
     Returns
@@ -37,26 +44,22 @@ def trilinear_sdf(values: torch.Tensor, origin: torch.Tensor, voxel_size_m: floa
     base = torch.clamp(torch.floor(u.detach()).long(), min=0)
     base = torch.minimum(base, shape - 2)
     frac = u - base.to(u.dtype)
-    nx, ny, nz = values.shape
-    flat = values.reshape(-1)
-    i, j, k = base.unbind(-1)
-    fx, fy, fz = frac.unbind(-1)
-    out = torch.zeros_like(fx)
-    for di in (0, 1):
-        wx = fx if di else 1.0 - fx
-        for dj in (0, 1):
-            wy = fy if dj else 1.0 - fy
-            for dk in (0, 1):
-                wz = fz if dk else 1.0 - fz
-                idx = ((i + di) * ny + (j + dj)) * nz + (k + dk)
-                out = out + wx * wy * wz * flat[idx]
+    _, ny, nz = values.shape
+    corners = _CORNERS.to(device=points.device)
+    node = base[:, None, :] + corners                                # (N, 8, 3)
+    flat_index = (node[..., 0] * ny + node[..., 1]) * nz + node[..., 2]
+    weight = torch.where(corners.bool(), frac[:, None, :], 1.0 - frac[:, None, :]).prod(-1)
+    out = (weight * values.reshape(-1)[flat_index]).sum(-1)
     return out + outside
 
 
 def sdf_lookup(values: torch.Tensor, origin: torch.Tensor, voxel_size_m: float,
                points: torch.Tensor) -> torch.Tensor:
-    """The look-up the simulator uses (the shared one when present, else :func:`trilinear_sdf`)."""
-    return _LOOKUP(values, origin, voxel_size_m, points)
+    """(N,) trilinear signed distance at ``points`` (N, 3); see the module docstring."""
+    cubic = values.shape[0] == values.shape[1] == values.shape[2]
+    if _SHARED is not None and cubic:
+        return _SHARED(values, origin, voxel_size_m, points)
+    return trilinear_sdf(values, origin, voxel_size_m, points)
 
 
 def sdf_gradient(values: torch.Tensor, origin: torch.Tensor, voxel_size_m: float,
@@ -69,13 +72,13 @@ def sdf_gradient(values: torch.Tensor, origin: torch.Tensor, voxel_size_m: float
     return (d[:, :3] - d[:, 3:]) / (2.0 * h)
 
 
-def _select_lookup():
-    """Prefer the project's shared ``r2s.geometry.sdf_torch.sdf_lookup`` when it exists."""
+def _shared_lookup():
+    """The project's ``r2s.geometry.sdf_torch.sdf_lookup``, or None when it is absent."""
     try:
-        from r2s.geometry.sdf_torch import sdf_lookup as shared  # type: ignore
+        from r2s.geometry.sdf_torch import sdf_lookup as shared
     except ImportError:
-        return trilinear_sdf
+        return None
     return shared
 
 
-_LOOKUP = _select_lookup()
+_SHARED = _shared_lookup()

@@ -8,7 +8,8 @@ from typing import Optional
 import numpy as np
 import torch
 
-from r2s.sim.diffsim.rotation import matrix_from_quat, quat_from_matrix, quat_from_rotvec, quat_multiply
+from r2s.sim.diffsim.rotation import (matrix_from_quat, quat_from_matrix, quat_from_rotvec,
+                                      quat_multiply)
 from r2s.sim.diffsim.system import System
 
 
@@ -69,8 +70,10 @@ def init(system: System, world_from_object, linear_velocity=None, angular_veloci
     if translation is not None:
         position = position + translation.to(dtype)
     zeros = torch.zeros(3, dtype=dtype, device=device)
-    v = zeros if linear_velocity is None else torch.as_tensor(linear_velocity, dtype=dtype, device=device)
-    w = zeros if angular_velocity is None else torch.as_tensor(angular_velocity, dtype=dtype, device=device)
+    v = zeros if linear_velocity is None else torch.as_tensor(linear_velocity, dtype=dtype,
+                                                              device=device)
+    w = zeros if angular_velocity is None else torch.as_tensor(angular_velocity, dtype=dtype,
+                                                               device=device)
     impulse = torch.zeros(environment_count(system), system.points_in_object.shape[0], 3,
                           dtype=dtype, device=device)
     return State(position, quat, v, w, torch.zeros((), dtype=dtype, device=device), impulse)
@@ -85,8 +88,11 @@ def world_from_object(system: System, state: State) -> torch.Tensor:
     return torch.cat([top, bottom], 0)
 
 
-def points_in_world(system: System, state: State) -> tuple[torch.Tensor, torch.Tensor]:
+def points_in_world(system: System, state: State, rot: Optional[torch.Tensor] = None
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
     """World positions of the sample points and their lever arms from the COM.
+
+    ``rot`` (3, 3) is the state's rotation matrix when the caller already has it.
 
     Returns
     -------
@@ -94,6 +100,7 @@ def points_in_world(system: System, state: State) -> tuple[torch.Tensor, torch.T
     lever_arms : (N, 3) ``points - COM`` (world frame axes), the ``p - c`` of the contact
         Jacobians.
     """
-    rot = matrix_from_quat(state.orientation)
+    if rot is None:
+        rot = matrix_from_quat(state.orientation)
     lever = (system.points_in_object - system.com_in_object) @ rot.T
     return state.position + lever, lever

@@ -29,6 +29,8 @@ import numpy as np
 import torch
 import trimesh
 
+from r2s.geometry.mass_properties import mass_properties
+
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 
 
@@ -50,9 +52,10 @@ class SupportPlane:
 class SdfObstacle:
     """A fixed body given by a signed distance grid in its own object frame.
 
-    values : (X, Y, Z) signed distance at the grid nodes, metres, negative inside.
-    origin : (3,) object-frame position of node (0, 0, 0).
-    voxel_size_m : node spacing.
+    values : (X, Y, Z) signed distance at the voxel centres, metres, negative inside,
+        indexed [i, j, k] = [x, y, z] (the layout of :class:`r2s.geometry.sdf.SdfGrid`).
+    origin : (3,) object-frame position of voxel [0, 0, 0]'s centre.
+    voxel_size_m : spacing of the voxel centres.
     world_from_object : (4, 4) pose of the obstacle.
     friction : () friction value (combined with the body's by product).
     """
@@ -66,14 +69,15 @@ class SdfObstacle:
 
 @dataclass(frozen=True)
 class SolverParams:
-    """Numerical parameters of :func:`r2s.sim.diffsim.step.step`.
+    """Numerical parameters of :func:`r2s.sim.diffsim.dynamics.step`.
 
     dt_s : time step (PyBullet's default 1/240 s).
     contact_margin_m : sample points closer than this to an environment body are contacts
         (speculative below it: a gap may close but not be overshot).
     erp : fraction of a penetration deeper than ``slop_m`` corrected per step.
     slop_m : penetration left uncorrected (avoids jitter at rest).
-    iterations : accelerated projected-gradient iterations of the impulse solve per step.
+    outer_iterations, newton_iterations, tolerance_mps, rho_scale, refine_iterations : the
+        contact solve, see :func:`r2s.sim.diffsim.solver.solve_impulses`.
     gyroscopic : include the explicit gyroscopic torque ``-w x (I w)``.
     """
 
@@ -81,7 +85,11 @@ class SolverParams:
     contact_margin_m: float = 0.005
     erp: float = 0.2
     slop_m: float = 0.0005
-    iterations: int = 30
+    outer_iterations: int = 8
+    newton_iterations: int = 8
+    tolerance_mps: float = 1e-6
+    rho_scale: float = 1e4
+    refine_iterations: int = 2
     gyroscopic: bool = True
 
 
@@ -145,33 +153,38 @@ def make_obstacle(values, origin, voxel_size_m: float, world_from_object, fricti
 
 
 def sample_surface_points(mesh: trimesh.Trimesh, samples: int, seed: int = 0) -> np.ndarray:
-    """(samples, 3) surface points of ``mesh`` (object frame).
+    """(samples, 3) surface points of ``mesh`` (object frame), spread evenly.
 
-    A mesh with fewer vertices than ``samples`` keeps all its vertices (corners of a box
-    matter for its support polygon) and is filled up with area-uniform samples.
+    A mesh with fewer vertices than ``samples`` keeps all its vertices (the corners of a
+    box matter for its support polygon); the rest are Poisson-disk-like samples
+    (``trimesh.sample.sample_surface_even``), topped up with area-uniform ones if needed.
     """
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     keep = vertices if len(vertices) < samples else np.zeros((0, 3))
-    extra, _ = trimesh.sample.sample_surface(mesh, samples - len(keep), seed=seed)
-    return np.concatenate([keep, np.asarray(extra, dtype=np.float64)], 0)
+    count = samples - len(keep)
+    even, _ = trimesh.sample.sample_surface_even(mesh, count, seed=seed)
+    even = np.asarray(even, dtype=np.float64).reshape(-1, 3)[:count]
+    parts = [keep, even]
+    if len(even) < count:
+        extra, _ = trimesh.sample.sample_surface(mesh, count - len(even), seed=seed + 1)
+        parts.append(np.asarray(extra, dtype=np.float64))
+    return np.concatenate(parts, 0)
 
 
 def inertia_per_kg_from_mesh(mesh: trimesh.Trimesh,
                              mode: Literal["mesh", "aabb"] = "mesh") -> np.ndarray:
-    """(3, 3) inertia per kg about the mesh's centroid, object frame axes.
+    """(3, 3) inertia per kg about the mesh's centre of mass, object frame axes.
 
-    ``mode="mesh"`` integrates the closed mesh at uniform density; ``mode="aabb"`` uses the
-    solid box of the mesh's axis-aligned bounds, which is what PyBullet computes for a
-    body built from convex mesh pieces (use it to match the judge exactly).
+    ``mode="mesh"`` integrates the solid at uniform density
+    (:func:`r2s.geometry.mass_properties.mass_properties`: exact for a closed mesh, convex
+    hull for an open one); ``mode="aabb"`` is the solid box of the mesh's axis-aligned
+    bounds, which is what PyBullet computes for a body built from convex mesh pieces (use
+    it to match the judge exactly).
     """
     if mode == "aabb":
         ex, ey, ez = np.asarray(mesh.extents, dtype=np.float64)
         return np.diag([ey**2 + ez**2, ex**2 + ez**2, ex**2 + ey**2]) / 12.0
-    volume = float(mesh.volume)
-    if not mesh.is_watertight or volume <= 0:
-        ex, ey, ez = np.asarray(mesh.extents, dtype=np.float64)
-        return np.diag([ey**2 + ez**2, ex**2 + ez**2, ex**2 + ey**2]) / 12.0
-    return np.asarray(mesh.moment_inertia, dtype=np.float64) / (mesh.density * volume)
+    return np.asarray(mass_properties(mesh, mass_kg=1.0).inertia_about_com, dtype=np.float64)
 
 
 def system_from_mesh(mesh: trimesh.Trimesh, mass_kg: float, com_in_object=None,
@@ -187,7 +200,7 @@ def system_from_mesh(mesh: trimesh.Trimesh, mass_kg: float, com_in_object=None,
     ----------
     mesh : the body's mesh, object frame.
     mass_kg : body mass.
-    com_in_object : (3,) COM, object frame; None = the mesh's volume centroid.
+    com_in_object : (3,) COM, object frame; None = the uniform-density solid's COM.
     friction : the body's friction value.
     samples : number of surface sample points used as contact candidates.
     seed : sampling seed (deterministic).
@@ -197,7 +210,7 @@ def system_from_mesh(mesh: trimesh.Trimesh, mass_kg: float, com_in_object=None,
     inertia : see :func:`inertia_per_kg_from_mesh`.
     """
     if com_in_object is None:
-        com_in_object = mesh.center_mass if mesh.is_watertight else mesh.bounds.mean(0)
+        com_in_object = mass_properties(mesh, mass_kg=1.0).com_in_object
     points = sample_surface_points(mesh, samples, seed)
     return System(
         points_in_object=_tensor(points, dtype, device),

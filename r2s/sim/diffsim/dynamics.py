@@ -16,9 +16,8 @@ from r2s.sim.diffsim.state import State, points_in_world
 from r2s.sim.diffsim.system import System
 
 
-def world_inertia(system: System, orientation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(3, 3) world inertia about the COM and its inverse for ``orientation`` (4,)."""
-    rot = matrix_from_quat(orientation)
+def world_inertia(system: System, rot: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(3, 3) world inertia about the COM and its inverse for the body rotation ``rot`` (3, 3)."""
     inertia_body = system.mass_kg * system.inertia_per_kg
     inertia = rot @ inertia_body @ rot.T
     inv_inertia = rot @ torch.linalg.inv(inertia_body) @ rot.T
@@ -50,32 +49,36 @@ def normal_target(system: System, distance: torch.Tensor) -> torch.Tensor:
 
 
 def contact_velocity(system: System, state: State, contacts: Contacts, lever: torch.Tensor,
-                     v_free: torch.Tensor, w_free: torch.Tensor, inv_inertia: torch.Tensor
-                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Run the impulse solve over all (environment body, sample point) pairs.
+                     v_free: torch.Tensor, w_free: torch.Tensor, inertia: torch.Tensor,
+                     inv_inertia: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Run the impulse solve over the contact pairs.
 
-    Returns the (E, N, 3) impulses and the body velocity (3,), (3,) after contact.
+    Returns the (E, N, 3) impulses (zero off contact; the next step's warm start) and the
+    body velocity (3,), (3,) after contact.
     """
-    e, n = contacts.distance.shape
-    if e == 0:
-        return state.contact_impulse, v_free, w_free
-    flat_lever = lever.expand(e, n, 3).reshape(-1, 3)
-    mu = contacts.friction[:, None].expand(e, n).reshape(-1)
-    impulse, v, w = solve_impulses(
-        v_free, w_free, 1.0 / system.mass_kg, inv_inertia, flat_lever,
-        contacts.normal.reshape(-1, 3), normal_target(system, contacts.distance).reshape(-1),
-        mu, contacts.active.reshape(-1), state.contact_impulse.reshape(-1, 3),
-        system.params.iterations)
-    return impulse.reshape(e, n, 3), v, w
+    impulse = torch.zeros_like(state.contact_impulse)
+    if contacts.count == 0:
+        return impulse, v_free, w_free
+    warm = state.contact_impulse[contacts.body, contacts.point]
+    p = system.params
+    pair_impulse, v, w = solve_impulses(
+        v_free, w_free, system.mass_kg, inertia, inv_inertia, lever[contacts.point],
+        contacts.normal, normal_target(system, contacts.distance), contacts.friction, warm,
+        p.outer_iterations, p.newton_iterations, p.tolerance_mps, p.rho_scale,
+        p.refine_iterations)
+    impulse = impulse.index_put((contacts.body, contacts.point), pair_impulse)
+    return impulse, v, w
 
 
 def step(system: System, state: State) -> State:
     """Advance ``state`` by ``system.params.dt_s`` (pure; differentiable)."""
-    inertia, inv_inertia = world_inertia(system, state.orientation)
+    rot = matrix_from_quat(state.orientation)
+    inertia, inv_inertia = world_inertia(system, rot)
     v_free, w_free = free_velocity(system, state, inertia, inv_inertia)
-    points, lever = points_in_world(system, state)
+    points, lever = points_in_world(system, state, rot)
     contacts = find_contacts(system, points)
-    impulse, v, w = contact_velocity(system, state, contacts, lever, v_free, w_free, inv_inertia)
+    impulse, v, w = contact_velocity(system, state, contacts, lever, v_free, w_free, inertia,
+                                     inv_inertia)
     dt = system.params.dt_s
     return State(
         position=state.position + v * dt,
