@@ -38,6 +38,7 @@ class World:
     body_ids: dict[int, int]
     coms: dict[int, np.ndarray]
     tmp: tempfile.TemporaryDirectory
+    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
 
     def close(self) -> None:
         try:
@@ -72,7 +73,7 @@ def build_world(bodies: Sequence[SimBody], support_point: Sequence[float],
         ids[body.id] = add_rigid_body(client, files, body.world_from_object, body.mass_kg,
                                       body.com_in_object, body.friction)
         coms[body.id] = np.asarray(body.com_in_object, dtype=float)
-    return World(client, ids, coms, tmp)
+    return World(client, ids, coms, tmp, tuple(float(g) for g in gravity))
 
 
 def rotation_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -176,3 +177,19 @@ def depenetrate(world: World, order: Sequence[int], tolerance_m: float = 1.5e-3,
             poses[i][:3, 3] += delta
         world.set_poses({i: poses[i] for i in push})
     return poses
+
+
+def support_centroid(world: World, body_id: int) -> np.ndarray | None:
+    """World centroid of the contact points between a body and everything else (None if
+    it touches nothing), after one collision pass at the current poses."""
+    pb.performCollisionDetection(physicsClientId=world.client)
+    pts = pb.getContactPoints(bodyA=world.body_ids[body_id], physicsClientId=world.client)
+    if not pts:
+        return None
+    return np.mean([p[5] for p in pts], axis=0)  # positionOnA
+
+
+def world_gravity(world: World) -> np.ndarray:
+    """The gravity vector the world was built with (world frame, m/s^2)."""
+    return np.asarray(world.gravity, dtype=float)
+

@@ -26,7 +26,8 @@ from r2s.io.mesh_io import load_mesh, welded
 from r2s.io.paths import ScenePaths
 from r2s.io.state import SceneState, read_state, write_state
 from r2s.physopt.hierarchy import order_root_to_leaves, parents_from_graph
-from r2s.physopt.pybullet_world import SimBody, build_world, depenetrate, drift, settle
+from r2s.physopt.pybullet_world import (SimBody, build_world, depenetrate, drift, settle,
+                                        support_centroid, world_gravity)
 from r2s.stages.base import StageContext, StageOptions, StageSpec
 from r2s.stages.manifest import Manifest
 from r2s.stages.select import latest_state_stage
@@ -55,6 +56,20 @@ class Options(StageOptions):
                                 "object that must move further is reported unresolved.")
     use_diffsim: bool = Field(True, description="Optimise each object through the torch "
                                                 "simulator before the PyBullet check.")
+    diffsim_iterations: int = Field(30, ge=0, description="Adam steps per object.")
+    diffsim_samples: int = Field(300, ge=10, description="Surface samples of the free body.")
+    diffsim_sdf_resolution: int = Field(48, ge=16, description="SDF grid of fixed neighbours.")
+    contact_margin_m: float = Field(0.0015, gt=0, description="Distance that may carry load in "
+                                                           "the wrench residual.")
+    wrench_tolerance: float = Field(0.01, ge=0, description="Residual counted as balanced.")
+    sim_steps: int = Field(20, ge=0, description="Rollout steps of L_sim (0: wrench only).")
+    sim_every: int = Field(5, ge=1, description="Evaluate L_sim every this many iterations.")
+    lambda_wrench: float = Field(1.0, ge=0, description="Weight of the wrench residual.")
+    lambda_sim: float = Field(10.0, ge=0, description="Weight of L_sim.")
+    lambda_anchor: float = Field(0.01, ge=0, description="Weight of the pose anchor.")
+    lambda_com: float = Field(0.01, ge=0, description="Weight of the COM shift (per cm^2).")
+    anchor_translation_m: float = Field(0.005, gt=0, description="Anchor scale, translation.")
+    anchor_rotation_deg: float = Field(3.0, gt=0, description="Anchor scale, rotation.")
     convex_threshold: float = Field(0.05, gt=0, description="CoACD threshold (same as export).")
     max_convex_pieces: int = Field(64, ge=1, description="Most convex pieces (same as export).")
 
@@ -72,6 +87,12 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
     return [paths.stage_dir(src), paths.contact_graph]
 
 
+def _inner_box(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """COM bounds: the inner half of the bounding box (object frame)."""
+    lo, hi = np.asarray(mesh.bounds[0]), np.asarray(mesh.bounds[1])
+    return lo + 0.25 * (hi - lo), hi - 0.25 * (hi - lo)
+
+
 def _initial_params(state: SceneState, meshes: dict, pieces: dict, opt: Options) -> dict:
     params = {}
     for obj in state.objects:
@@ -85,43 +106,85 @@ def _initial_params(state: SceneState, meshes: dict, pieces: dict, opt: Options)
             "com_in_object": (np.asarray(obj.com_in_object) if obj.com_in_object is not None
                               else nominal.com_in_object.copy()),
             "friction": float(obj.friction if obj.friction is not None else opt.friction_init),
+            "com_bounds": _inner_box(meshes[obj.id]),
         }
     return params
 
 
-def _verify_and_repair(params: dict, pieces: dict, state: SceneState, order: list[int],
-                       opt: Options, log: dict, progress) -> dict:
-    """PyBullet rounds: check, raise friction of movers, settle; returns final drift."""
+def _world_factory(params: dict, pieces: dict, state: SceneState, order: list[int], opt: Options):
     def make_world():
         bodies = [SimBody(i, pieces[i], params[i]["world_from_object"], params[i]["mass_kg"],
                           params[i]["com_in_object"], params[i]["friction"]) for i in order]
         return build_world(bodies, state.support.point, state.support.normal,
                            opt.support_friction, state.gravity)
+    return make_world
+
+
+def _depenetrate(params: dict, pieces: dict, state: SceneState, order: list[int], opt: Options,
+                 log: dict) -> None:
+    """Separate the collision geometry (children move, parents stay) before anything else."""
+    world = _world_factory(params, pieces, state, order, opt)()
+    try:
+        before = {i: params[i]["world_from_object"] for i in order}
+        fixed = depenetrate(world, order)
+    finally:
+        world.close()
+    for i in order:
+        shift = float(np.linalg.norm(fixed[i][:3, 3] - before[i][:3, 3]))
+        if shift > 1e-4:
+            log["objects"][i].append(f"depenetrated by {shift * 1000:.1f} mm")
+        params[i]["world_from_object"] = fixed[i]
+
+
+def _com_over_support(world, oid: int, p: dict, notes: list, rnd: int, opt: Options) -> None:
+    """Move a toppling object's COM horizontally towards the centroid of its contacts,
+    within the inner half of its bounding box (non-uniform density, bounded)."""
+    target = support_centroid(world, oid)
+    if target is None:
+        return
+    pose = p["world_from_object"]
+    com_world = pose[:3, :3] @ p["com_in_object"] + pose[:3, 3]
+    up = -np.asarray(world_gravity(world), dtype=float)
+    up /= np.linalg.norm(up)
+    delta = target - com_world
+    delta -= up * float(delta @ up)  # horizontal only
+    new_com = p["com_in_object"] + pose[:3, :3].T @ delta
+    lo, hi = p["com_bounds"]
+    new_com = np.clip(new_com, lo, hi)
+    moved = float(np.linalg.norm(new_com - p["com_in_object"]))
+    if moved > 1e-4:
+        notes.append(f"round {rnd}: COM moved {moved * 1000:.1f} mm towards its support")
+        p["com_in_object"] = new_com  # takes effect when the next world is built
+
+
+def _verify_and_repair(params: dict, pieces: dict, state: SceneState, order: list[int],
+                       opt: Options, log: dict, progress) -> dict:
+    """PyBullet rounds: check, raise friction of movers, settle; returns final drift."""
+    make_world = _world_factory(params, pieces, state, order, opt)
 
     def moving(d: dict) -> list[int]:
         return [i for i, (t, r) in d.items() if t > opt.tolerance_m or r > opt.tolerance_deg]
 
     world = make_world()
     try:
-        before = {i: params[i]["world_from_object"] for i in order}
-        fixed = depenetrate(world, order)
-        for i in order:
-            shift = float(np.linalg.norm(fixed[i][:3, 3] - before[i][:3, 3]))
-            if shift > 1e-4:
-                log["objects"][i].append(f"depenetrated by {shift * 1000:.1f} mm")
-            params[i]["world_from_object"] = fixed[i]
-        start = {i: params[i]["world_from_object"] for i in order}
-        result = drift(world, start, opt.verify_duration_s)
+        result = drift(world, {i: params[i]["world_from_object"] for i in order},
+                       opt.verify_duration_s)
     finally:
         world.close()
-    log["rounds"].append({"round": 0, "action": "depenetrate+check", "moving": moving(result),
+    log["rounds"].append({"round": 0, "action": "check", "moving": moving(result),
                           "drift": {str(i): list(v) for i, v in result.items()}})
     for rnd in range(1, opt.max_rounds + 1):
         movers = moving(result)
         if not movers:
             break
-        progress(f"verification round {rnd}: {len(movers)} moving", rnd / (opt.max_rounds + 1))
+        progress(f"verification round {rnd}: {len(movers)} moving", 0.5 + 0.5 * rnd / (opt.max_rounds + 1))
         hi = opt.friction_bounds[1]
+        world = make_world()
+        try:
+            for i in movers:
+                _com_over_support(world, i, params[i], log["objects"][i], rnd, opt)
+        finally:
+            world.close()
         for i in movers:
             if params[i]["friction"] < hi:
                 log["objects"][i].append(f"round {rnd}: friction {params[i]['friction']:.2f} -> "
@@ -170,6 +233,8 @@ def run(ctx: StageContext) -> dict:
     log: dict = {"source": src, "order": order, "parents": parents, "objects": {i: [] for i in order},
                  "rounds": []}
 
+    ctx.progress("depenetration", 0.1)
+    _depenetrate(params, pieces, state, order, opt, log)
     if opt.use_diffsim:
         try:
             from r2s.physopt.object_opt import optimise_objects
