@@ -1,6 +1,6 @@
 """Time the graph and geomopt stages on a synthetic 10-object tabletop.
 
-    python scripts/bench_geomopt.py [--resolution 128] [--voxel 0.0015] [--keep DIR]
+    python scripts/bench_geomopt.py [--resolution 128] [--voxel 0.0015 | --voxel 0] [--keep DIR]
 
 The scene (boxes, a plate on two blocks, a cylinder on the plate, a box on a box, a sphere,
 a board leaning on a block) is perturbed with seeded noise (sinking, floating, small
@@ -91,8 +91,8 @@ def write_scene(root: Path, seed: int = 0) -> Path:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--resolution", type=int, default=128, help="SDF voxels per axis")
-    parser.add_argument("--voxel", type=float, default=None,
-                        help="sdf_voxel_size_m (m): voxels of about this size, resolution as the cap")
+    parser.add_argument("--voxel", type=float, default=0.0015,
+                        help="sdf_voxel_size_m (m), resolution as the cap; 0: fixed resolution")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     parser.add_argument("--keep", type=Path, default=None, help="write the scene here and keep it")
     args = parser.parse_args()
@@ -109,7 +109,7 @@ def main() -> None:
         t_graph = time.perf_counter() - t
         t = time.perf_counter()
         r = run_stage(geomopt.STAGE, scene, geomopt.Options(sdf_resolution=args.resolution,
-                                                           sdf_voxel_size_m=args.voxel))
+                                                           sdf_voxel_size_m=args.voxel or None))
         t_geom = time.perf_counter() - t
         s = r.summary
         print(f"objects: {s['objects']}  torch threads: {torch.get_num_threads()}  "

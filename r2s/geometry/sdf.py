@@ -2,18 +2,20 @@
 
 :func:`compute_sdf` samples a mesh's signed distance on a cubic grid that covers the mesh's
 bounding box plus a padding. Distances are exact (closest point on the triangles, by
-Open3D's ``RaycastingScene``) in a narrow band around the surface and, further out, the
-distance to the closest surface point of the nearest band voxel (a closest-point
-transform), which equals the true distance up to float error in practice and costs a
-fraction of a full query: far-field closest-point queries dominate the run time otherwise.
+Open3D's ``RaycastingScene``) in a band of a few voxels around the surface. Further out a
+voxel takes the distance to the closest surface point of the nearest band voxel (a
+closest-point transform over a Euclidean distance transform), within half a voxel or so
+of the truth and a fraction of the cost: far-field closest-point queries would otherwise
+dominate the run time (measured here: 10 s instead of 2 s at 128^3).
 
-The sign comes from ray parity (Open3D's occupancy) for a watertight mesh. A mesh that is
-not watertight (a scan with a hole, a mesh with a missing bottom) gets its sign from the
-generalised winding number (inside where it exceeds 1/2), evaluated on a coarse grid of a
-decimated copy of the mesh and interpolated, and, within a few coarse voxels of the
-surface, from the normal of the closest triangle (so the zero crossing stays where the
-surface is). This needs consistently oriented faces; a mesh whose faces point every which
-way has no meaningful inside.
+Signs: the band separates the far voxels into connected components that the surface never
+crosses, so each component has one sign, voted by seven of its voxels. Votes and band
+voxels use ray parity (Open3D's occupancy, three rays) for a watertight mesh. A mesh that
+is not watertight (a scan with a hole, a missing bottom) uses the generalised winding
+number (inside above 1/2) for the votes and the closest triangle's normal in the band;
+where a hole joins the inside to the outer component, a voxel there is inside when it is
+behind its closest face and a coarse winding-number grid says so. This needs consistently
+oriented faces: a mesh whose faces point every which way has no meaningful inside.
 """
 
 from __future__ import annotations
@@ -204,16 +206,14 @@ def _component_representatives(labels_far: np.ndarray, per_component: int
     return order[picks.reshape(-1)], np.repeat(comps, per_component)
 
 
-def _component_sign(labels_far: np.ndarray, rep_pos: np.ndarray, rep_comp: np.ndarray,
-                    rep_inside_score: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per far voxel: inside by majority over its component's representatives, and whether
-    the representatives agreed (unanimous)."""
+def _component_sign(labels_far: np.ndarray, rep_comp: np.ndarray,
+                    rep_inside_score: np.ndarray) -> np.ndarray:
+    """Per far voxel: inside when most of its component's representatives are inside
+    (score > 1/2: occupancy or winding number)."""
     n = int(labels_far.max()) + 1 if len(labels_far) else 1
     votes = np.bincount(rep_comp, weights=rep_inside_score > 0.5, minlength=n)
     total = np.bincount(rep_comp, minlength=n)
-    frac = votes / np.maximum(total, 1)
-    unanimous = (frac == 0.0) | (frac == 1.0)
-    return frac[labels_far] > 0.5, unanimous[labels_far]
+    return (votes / np.maximum(total, 1))[labels_far] > 0.5
 
 
 def compute_sdf(mesh: trimesh.Trimesh, resolution: int = 128, padding_m: float | None = None,
@@ -309,13 +309,12 @@ def compute_sdf(mesh: trimesh.Trimesh, resolution: int = 128, padding_m: float |
     if mesh.is_watertight:
         inside_band = _occupancy(scene, band_pts)
         rep_score = _occupancy(scene, rep_pts).astype(np.float64)
-        inside_far, _ = _component_sign(labels_far, rep_pos, rep_comp, rep_score)
+        inside_far = _component_sign(labels_far, rep_comp, rep_score)
     else:
         normals = result["primitive_normals"].numpy().astype(np.float64)
         inside_band = np.einsum("ni,ni->n", band_pts - cp_band, normals) < 0.0
         v, f = _decimated(mesh, winding_max_faces)
-        inside_far, _ = _component_sign(labels_far, rep_pos, rep_comp,
-                                        winding_number(v, f, rep_pts))
+        inside_far = _component_sign(labels_far, rep_comp, winding_number(v, f, rep_pts))
         # the outer component(s) may reach inside through a hole: there a voxel is inside
         # where it lies behind its closest face and the coarse winding number says so
         outer = np.isin(labels_far, boundary[boundary > 0])

@@ -8,7 +8,7 @@ plane) the parameters theta_j = {pose offset, COM, friction} minimise
 where R_wrench is the quasi-static wrench residual (0 when admissible contact forces in
 the friction cones balance gravity), L_sim the paper's 1/2 sum |v|^2 h over a short
 rollout, and the anchor keeps the pose near the observation. The COM is kept inside the
-shape's inner box and the friction within its bounds; the mass is kept at its prior
+shape's central box (40% of each extent) and the friction within its bounds; the mass is kept at its prior
 (a single body on fixed supports has no mass gradient). An object whose residual is
 already below tolerance is left unchanged.
 """
@@ -74,7 +74,7 @@ def _optimise_one(mesh, p: dict, plane, obstacles: tuple, gravity, opt) -> str:
     lo_f, hi_f = opt.friction_bounds
     c0 = torch.as_tensor(p["com_in_object"], dtype=dtype)
     lo_b, hi_b = (torch.tensor(np.array(b), dtype=dtype) for b in mesh.bounds)
-    inner_lo, inner_hi = lo_b + 0.25 * (hi_b - lo_b), hi_b - 0.25 * (hi_b - lo_b)
+    inner_lo, inner_hi = lo_b + 0.3 * (hi_b - lo_b), hi_b - 0.3 * (hi_b - lo_b)
     t = torch.zeros(3, dtype=dtype, requires_grad=True)
     rv = torch.zeros(3, dtype=dtype, requires_grad=True)
     dc = torch.zeros(3, dtype=dtype, requires_grad=True)

@@ -103,24 +103,19 @@ def drift(world: World, start: dict[int, np.ndarray], duration_s: float,
 
 
 def settle(world: World, start: dict[int, np.ndarray], duration_s: float,
-           linear_damping: float = 0.9, angular_damping: float = 0.9,
            time_step_s: float = 1.0 / 240.0) -> dict[int, np.ndarray]:
-    """Let the scene come to rest under strong velocity damping; returns the rest poses.
+    """Quasi-static settling: step with every velocity reset to zero before each step.
 
-    Damping removes kinetic energy, so the bodies creep to the nearest rest state of the
-    engine instead of tumbling; the damping is reset afterwards.
+    No momentum builds up, so each body slides down the energy landscape by at most
+    ``g dt^2`` per step into the nearest rest state supported by its contacts, instead of
+    rolling or tumbling away. Returns the rest poses.
     """
     world.set_poses(start)
-    for b in world.body_ids.values():
-        pb.changeDynamics(b, -1, linearDamping=linear_damping, angularDamping=angular_damping,
-                          physicsClientId=world.client)
     for _ in range(int(round(duration_s / time_step_s))):
+        for b in world.body_ids.values():
+            pb.resetBaseVelocity(b, [0, 0, 0], [0, 0, 0], physicsClientId=world.client)
         pb.stepSimulation(physicsClientId=world.client)
-    poses = world.poses()
-    for b in world.body_ids.values():
-        pb.changeDynamics(b, -1, linearDamping=0.04, angularDamping=0.04,
-                          physicsClientId=world.client)
-    return poses
+    return world.poses()
 
 
 def penetrations(world: World, plane_body: int = 0) -> list[tuple[int, int, float, np.ndarray]]:

@@ -47,7 +47,10 @@ class Options(StageOptions):
     tolerance_m: float = Field(0.005, gt=0, description="Largest COM motion counted as at rest.")
     tolerance_deg: float = Field(2.0, gt=0, description="Largest rotation counted as at rest.")
     max_rounds: int = Field(4, ge=0, description="Verification rounds (friction, then settling).")
-    settle_duration_s: float = Field(1.5, gt=0, description="Damped settling time per round.")
+    settle_duration_s: float = Field(1.0, gt=0, description="Quasi-static settling time per round.")
+    max_com_step_m: float = Field(0.01, gt=0, description="Largest COM move per round.")
+    com_repair: bool = Field(False, description="In verification rounds, move a mover's COM "
+                                                "towards the centroid of its contacts.")
     max_settle_shift_m: float = Field(
         0.03, gt=0, description="In early rounds, a settled object that moved further is kept "
                                 "at its pose (its neighbours may still settle).")
@@ -88,9 +91,9 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
 
 
 def _inner_box(mesh) -> tuple[np.ndarray, np.ndarray]:
-    """COM bounds: the inner half of the bounding box (object frame)."""
+    """COM bounds: the central 40% of the bounding box along each axis (object frame)."""
     lo, hi = np.asarray(mesh.bounds[0]), np.asarray(mesh.bounds[1])
-    return lo + 0.25 * (hi - lo), hi - 0.25 * (hi - lo)
+    return lo + 0.3 * (hi - lo), hi - 0.3 * (hi - lo)
 
 
 def _initial_params(state: SceneState, meshes: dict, pieces: dict, opt: Options) -> dict:
@@ -148,7 +151,9 @@ def _com_over_support(world, oid: int, p: dict, notes: list, rnd: int, opt: Opti
     up /= np.linalg.norm(up)
     delta = target - com_world
     delta -= up * float(delta @ up)  # horizontal only
-    new_com = p["com_in_object"] + pose[:3, :3].T @ delta
+    step = pose[:3, :3].T @ delta
+    step *= min(1.0, opt.max_com_step_m / max(float(np.linalg.norm(step)), 1e-12))
+    new_com = p["com_in_object"] + step
     lo, hi = p["com_bounds"]
     new_com = np.clip(new_com, lo, hi)
     moved = float(np.linalg.norm(new_com - p["com_in_object"]))
@@ -179,12 +184,13 @@ def _verify_and_repair(params: dict, pieces: dict, state: SceneState, order: lis
             break
         progress(f"verification round {rnd}: {len(movers)} moving", 0.5 + 0.5 * rnd / (opt.max_rounds + 1))
         hi = opt.friction_bounds[1]
-        world = make_world()
-        try:
-            for i in movers:
-                _com_over_support(world, i, params[i], log["objects"][i], rnd, opt)
-        finally:
-            world.close()
+        if opt.com_repair:
+            world = make_world()
+            try:
+                for i in movers:
+                    _com_over_support(world, i, params[i], log["objects"][i], rnd, opt)
+            finally:
+                world.close()
         for i in movers:
             if params[i]["friction"] < hi:
                 log["objects"][i].append(f"round {rnd}: friction {params[i]['friction']:.2f} -> "

@@ -15,7 +15,7 @@ GEOMETRY_STAGES: tuple[str, ...] = ("init", "geomopt", "physopt")
 
 def latest_state_stage(paths: ScenePaths, manifest: Manifest, source: Optional[str] = None,
                        candidates: tuple[str, ...] = STATE_STAGES) -> str:
-    """Name of the newest state stage with a finished result (or ``source`` if given)."""
+    """Name of the most recently run state stage with a finished result (or ``source``)."""
     def done(name: str) -> bool:
         rec = manifest.stages.get(name)
         return rec is not None and rec.status == "done" and paths.state(name).is_file()
@@ -24,9 +24,12 @@ def latest_state_stage(paths: ScenePaths, manifest: Manifest, source: Optional[s
         if not done(source):
             raise StageError(f"stage '{source}' has no result in {paths.root}; run it first")
         return source
-    for name in reversed(candidates):
-        if done(name):
-            return name
+    finished = [(manifest.stages[n].started_at or "", k, n) for k, n in enumerate(candidates)
+                if done(n)]
+    if finished:
+        # the most recently run result (a stage rerun upstream makes later ones stale);
+        # ties (same second) go to the later stage in pipeline order
+        return max(finished)[2]
     raise StageError(f"{paths.root}: no reconstruction yet; run 'r2s init' first")
 
 

@@ -1,0 +1,201 @@
+"""Stage ``geomopt``: geometry-aware pose optimisation (paper stage c, first half).
+
+Reads ``init/`` (poses, meshes) and ``graph/contact_graph.json``; writes
+
+* ``geomopt/sdf/<id>.npy`` + ``<id>.json``: each object's SDF in its own frame
+  (:mod:`r2s.io.sdf_io`); reused from the previous run when mesh and settings match;
+* ``geomopt/state.json`` + ``meshes/<id>.glb``: init's state with optimised poses;
+* ``geomopt/loss.json``: the loss terms per iteration and the contact state before/after;
+* ``geomopt/loss.png``: a plot of the loss.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+from pydantic import Field, field_validator
+
+from r2s.errors import InputError, StageError
+from r2s.geometry.sdf import SdfGrid, compute_sdf
+from r2s.geomopt.optimise import GeomParams, optimise_poses
+from r2s.geomopt.plot import loss_plot
+from r2s.geomopt.problem import build_problem
+from r2s.io.atomic import atomic_write_bytes, atomic_write_json
+from r2s.io.mesh_io import load_mesh
+from r2s.io.paths import ScenePaths
+from r2s.io.sdf_io import load_sdf, read_sdf_meta, save_sdf
+from r2s.io.state import SceneState, read_state, write_state
+from r2s.stages.base import StageContext, StageOptions, StageSpec
+from r2s.stages.graph import read_contact_graph
+from r2s.stages.manifest import Manifest
+from r2s.stages.select import latest_state_stage
+
+SOURCE_STAGES = ("init",)
+SDF_PADDING_FRACTION = 0.1
+
+
+class Options(StageOptions):
+    iterations: int = Field(300, ge=1, description="most Adam iterations")
+    learning_rate_m: float = Field(1e-3, gt=0, description="initial step (m); decays to 1 %")
+    lambda_penetration: float = Field(1000.0, ge=0, description="weight of the non-penetration terms")
+    lambda_contact: float = Field(1.0, ge=0, description="weight of the TopK-min support contact term")
+    lambda_anchor: float = Field(1.0, ge=0, description="weight of the pose anchor to the init pose")
+    sigma_translation_m: float = Field(0.02, gt=0, description="translation that costs 1 in the anchor (m)")
+    sigma_rotation_m: float = Field(0.01, gt=0, description="rotation, as displacement of the farthest point, that costs 1 (m)")
+    top_k: int = Field(10, ge=1, description="K of the TopK-min contact term")
+    samples: int = Field(2000, ge=50, description="surface samples per object")
+    sdf_resolution: int = Field(128, ge=8, le=512, description="SDF voxels per axis (the most per axis when sdf_voxel_size_m is set)")
+    sdf_voxel_size_m: Optional[float] = Field(0.0015, gt=0, description="SDF voxels of about this size, at most sdf_resolution and at least 16 per axis (small objects get small grids); None: always sdf_resolution")
+    all_supporters: bool = Field(True, description="contact term for extra supporters too (not only the tree parent)")
+    contact_rotates: bool = Field(False, description="let the contact term rotate objects and move them sideways (default: only along gravity)")
+    support_vertical: bool = Field(True, description="penetration between a child and its supporter moves them along gravity only")
+    seed: int = Field(0, description="seed of the surface samples")
+
+    @field_validator("sdf_voxel_size_m", mode="before")
+    @classmethod
+    def _none_text(cls, value):
+        """``--set sdf_voxel_size_m=none`` on the command line means None."""
+        if isinstance(value, str) and value.strip().lower() in ("none", "null", ""):
+            return None
+        return value
+
+    def params(self) -> GeomParams:
+        return GeomParams(iterations=self.iterations, lr_translation_m=self.learning_rate_m,
+                          lambda_penetration=self.lambda_penetration,
+                          lambda_contact=self.lambda_contact, lambda_anchor=self.lambda_anchor,
+                          sigma_translation_m=self.sigma_translation_m,
+                          sigma_rotation_m=self.sigma_rotation_m, top_k=self.top_k,
+                          contact_rotates=self.contact_rotates,
+                          support_vertical=self.support_vertical)
+
+
+def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path]:
+    return [paths.stage_dir("init"), paths.stage_dir("graph")]
+
+
+def _sdf_settings(resolution: int, voxel_size_m: Optional[float]) -> dict:
+    return {"resolution": resolution, "voxel_size_m": voxel_size_m,
+            "padding_fraction": SDF_PADDING_FRACTION, "method": "band3+cpt"}
+
+
+def _cached_sdf(folder: Path, obj_id: int, mesh_sha: str, settings: dict) -> SdfGrid | None:
+    """The previous run's SDF of this mesh with these settings, if any."""
+    try:
+        meta = read_sdf_meta(folder, obj_id)
+        if meta.get("mesh_sha256") != mesh_sha or meta.get("settings") != settings:
+            return None
+        return load_sdf(folder, obj_id)
+    except InputError:
+        return None
+
+
+def sdf_resolution_for(extent_m: float, max_resolution: int, voxel_size_m: Optional[float]) -> int:
+    """Voxels per axis: ``max_resolution``, or fewer so voxels are about ``voxel_size_m``."""
+    if voxel_size_m is None:
+        return max_resolution
+    side = extent_m * (1.0 + 2.0 * SDF_PADDING_FRACTION)
+    wanted = int(np.ceil(side / voxel_size_m)) + 5  # + the two-voxel margins each side
+    return int(np.clip(wanted, 16, max_resolution))
+
+
+def object_sdf(mesh, max_resolution: int, voxel_size_m: Optional[float] = None) -> SdfGrid:
+    """SDF of an object-frame mesh, padded by 10 % of its extent plus two voxels."""
+    extent = float(np.max(mesh.extents))
+    resolution = sdf_resolution_for(extent, max_resolution, voxel_size_m)
+    padding = SDF_PADDING_FRACTION * extent + 2.0 * 1.2 * extent / (resolution - 1)
+    return compute_sdf(mesh, resolution=resolution, padding_m=padding)
+
+
+def _mm(d: dict) -> dict:
+    return {(k[:-2] + "_mm" if k.endswith("_m") else k): round(1000.0 * v, 4) for k, v in d.items()}
+
+
+def run(ctx: StageContext) -> dict:
+    paths, opts = ctx.paths, ctx.options
+    source = latest_state_stage(paths, ctx.manifest, candidates=SOURCE_STAGES)
+    src_dir = paths.stage_dir(source)
+    state = read_state(src_dir)
+    graph = read_contact_graph(paths.contact_graph)
+    ids = [o.id for o in state.objects]
+    graph_ids = {n.id for n in graph.nodes if not n.is_root}
+    if graph_ids != set(ids):
+        raise StageError(f"{paths.contact_graph}: objects {sorted(graph_ids)} differ from "
+                         f"{paths.state(source)} {sorted(ids)}; rerun 'r2s graph'")
+    if not ids:
+        raise StageError(f"{paths.state(source)}: no objects to optimise")
+
+    (ctx.out_dir / "meshes").mkdir()
+    sdf_dir = ctx.out_dir / "sdf"
+    old_sdf_dir = paths.stage_dir("geomopt") / "sdf"
+    meshes, grids, reused = [], [], 0
+    t_sdf = time.perf_counter()
+    for k, o in enumerate(state.objects):
+        ctx.progress(f"SDF of object {o.id}", 0.5 * k / len(ids))
+        mesh_path = src_dir / o.mesh
+        mesh = load_mesh(mesh_path)
+        mesh_bytes = mesh_path.read_bytes()
+        atomic_write_bytes(ctx.out_dir / "meshes" / f"{o.id}.glb", mesh_bytes)
+        sha = hashlib.sha256(mesh_bytes).hexdigest()
+        settings = _sdf_settings(opts.sdf_resolution, opts.sdf_voxel_size_m)
+        grid = _cached_sdf(old_sdf_dir, o.id, sha, settings)
+        if grid is None:
+            grid = object_sdf(mesh, opts.sdf_resolution, opts.sdf_voxel_size_m)
+        else:
+            reused += 1
+        save_sdf(grid, sdf_dir, o.id, extra={"mesh_sha256": sha, "mesh": f"meshes/{o.id}.glb",
+                                             "settings": settings})
+        meshes.append(mesh)
+        grids.append(grid)
+    t_sdf = time.perf_counter() - t_sdf
+
+    problem = build_problem(ids, meshes, np.stack([o.pose for o in state.objects]), grids, graph,
+                            np.asarray(state.support.point), np.asarray(state.support.normal),
+                            samples=opts.samples, seed=opts.seed,
+                            all_supporters=opts.all_supporters, gravity=np.asarray(state.gravity))
+
+    def progress(message: str, fraction: float) -> None:
+        ctx.progress(message, 0.5 + 0.5 * fraction)
+
+    result = optimise_poses(problem, opts.params(), progress)
+
+    objects = [o.model_copy(update={"world_from_object": result.world_from_object[k].tolist(),
+                                    "mesh": f"meshes/{o.id}.glb"})
+               for k, o in enumerate(state.objects)]
+    write_state(ctx.out_dir, SceneState.model_validate(
+        {**state.model_dump(), "stage": "geomopt", "objects": [o.model_dump() for o in objects]}))
+
+    shift_mm = 1000.0 * np.linalg.norm(result.world_from_object[:, :3, 3]
+                                       - problem.init_world_from_object[:, :3, 3], axis=1)
+    rot_deg = np.degrees(np.linalg.norm(result.omega, axis=1))
+    per_object = [{"id": i, "translation_mm": round(float(s), 3), "rotation_deg": round(float(r), 3)}
+                  for i, s, r in zip(ids, shift_mm, rot_deg)]
+    atomic_write_json(ctx.out_dir / "loss.json", {
+        "iterations": result.iterations, "converged": result.converged,
+        "best_iteration": result.best_iteration, "seconds": round(result.seconds, 3),
+        "terms": result.history, "before": _mm(result.before), "after": _mm(result.after),
+        "objects": per_object, "source_stage": source,
+        "support_edges": [[ids[c], None if p < 0 else ids[p]] for c, p in problem.support_edges],
+        "penetration_pairs": [[ids[a], ids[b]] for a, b in problem.penetration_pairs],
+    })
+    atomic_write_bytes(ctx.out_dir / "loss.png", loss_plot(result.history))
+    after, before = _mm(result.after), _mm(result.before)
+    summary = {
+        "objects": len(ids),
+        "max_penetration_mm": after["max_penetration_pairs_mm"],
+        "max_support_gap_mm": after["max_support_gap_mm"],
+        "max_translation_mm": round(float(shift_mm.max()), 3),
+        "max_rotation_deg": round(float(rot_deg.max()), 3),
+        "iterations": result.iterations, "converged": result.converged,
+        "sdf_seconds": round(t_sdf, 2), "sdf_reused": reused,
+        "optimise_seconds": round(result.seconds, 2),
+    }
+    summary.update({f"before_{k}": v for k, v in before.items()})
+    summary.update({f"after_{k}": v for k, v in after.items()})
+    return summary
+
+
+STAGE = StageSpec("geomopt", Options, inputs, run)
