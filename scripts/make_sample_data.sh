@@ -6,6 +6,6 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 R2S="${R2S:-.venv/bin/r2s}"
 OUT=sample_data/tabletop5
-"$R2S" synth "$OUT" --objects ycb --count 5 --seed 7 --width 640 --height 480
+"$R2S" synth "$OUT" --objects ycb --count 5 --seed 47 --width 640 --height 480
 rm -rf "$OUT/.cache"
 du -sh "$OUT"
