@@ -96,8 +96,9 @@ def run(
 @app.command()
 def synth(
     out_dir: Path = typer.Argument(..., help="Scene directory to create."),
-    objects: str = typer.Option("ycb", help="Object set: ycb, pybullet, or mixed."),
-    count: int = typer.Option(6, help="Number of objects (4-15)."),
+    objects: str = typer.Option("ycb", help="Object set: ycb, pybullet, mixed, or a "
+                                            "comma-separated list of catalogue names."),
+    count: int = typer.Option(6, help="Number of objects (1-15)."),
     seed: int = typer.Option(0, help="Random seed."),
     noise: float = typer.Option(1.0, help="Depth noise level (0 = perfect depth)."),
     effect: Optional[List[str]] = typer.Option(None, help="Injected effect NAME=VALUE "
@@ -131,6 +132,9 @@ def report(
 
 def main() -> None:
     """Console-script entry point: expected errors become one red line and an exit code."""
+    import logging
+
+    logging.getLogger("trimesh").setLevel(logging.ERROR)  # its sampling chatter is not news
     try:
         app(standalone_mode=False)
     except R2SError as exc:

@@ -103,17 +103,18 @@ def drift(world: World, start: dict[int, np.ndarray], duration_s: float,
 
 
 def settle(world: World, start: dict[int, np.ndarray], duration_s: float,
-           time_step_s: float = 1.0 / 240.0) -> dict[int, np.ndarray]:
-    """Quasi-static settling: step with every velocity reset to zero before each step.
+           reset_every: int = 8, time_step_s: float = 1.0 / 240.0) -> dict[int, np.ndarray]:
+    """Quasi-static settling: every velocity is reset to zero every ``reset_every`` steps.
 
-    No momentum builds up, so each body slides down the energy landscape by at most
-    ``g dt^2`` per step into the nearest rest state supported by its contacts, instead of
+    Little momentum builds up (at most ``g * reset_every * dt``), so each body slides down
+    the energy landscape into the nearest rest state supported by its contacts instead of
     rolling or tumbling away. Returns the rest poses.
     """
     world.set_poses(start)
-    for _ in range(int(round(duration_s / time_step_s))):
-        for b in world.body_ids.values():
-            pb.resetBaseVelocity(b, [0, 0, 0], [0, 0, 0], physicsClientId=world.client)
+    for k in range(int(round(duration_s / time_step_s))):
+        if k % reset_every == 0:
+            for b in world.body_ids.values():
+                pb.resetBaseVelocity(b, [0, 0, 0], [0, 0, 0], physicsClientId=world.client)
         pb.stepSimulation(physicsClientId=world.client)
     return world.poses()
 

@@ -47,7 +47,9 @@ class Options(StageOptions):
     tolerance_m: float = Field(0.005, gt=0, description="Largest COM motion counted as at rest.")
     tolerance_deg: float = Field(2.0, gt=0, description="Largest rotation counted as at rest.")
     max_rounds: int = Field(4, ge=0, description="Verification rounds (friction, then settling).")
-    settle_duration_s: float = Field(1.0, gt=0, description="Quasi-static settling time per round.")
+    settle_duration_s: float = Field(2.0, gt=0, description="Quasi-static settling time per round.")
+    settle_reset_steps: int = Field(8, ge=1, description="Velocities are zeroed every this many "
+                                                         "steps while settling.")
     max_com_step_m: float = Field(0.01, gt=0, description="Largest COM move per round.")
     com_repair: bool = Field(False, description="In verification rounds, move a mover's COM "
                                                 "towards the centroid of its contacts.")
@@ -200,7 +202,7 @@ def _verify_and_repair(params: dict, pieces: dict, state: SceneState, order: lis
         world = make_world()
         try:
             start = {i: params[i]["world_from_object"] for i in order}
-            settled = settle(world, start, opt.settle_duration_s)
+            settled = settle(world, start, opt.settle_duration_s, opt.settle_reset_steps)
             limit = opt.final_settle_shift_m if rnd == opt.max_rounds else opt.max_settle_shift_m
             for i in order:
                 shift = float(np.linalg.norm(settled[i][:3, 3] - start[i][:3, 3]))
