@@ -72,9 +72,27 @@ _STAGE_HELP = {
 
 _WANTS_HELP = "--help" in sys.argv[1:]
 for _name, _summary in _STAGE_HELP.items():
+    if _name == "physopt":
+        continue  # has its own command below (adds --only)
     # The option list imports the stage (and torch); build it only when help is asked for.
     _epilog = _options_epilog(_name) if _WANTS_HELP and _name in sys.argv[1:] else None
     app.command(name=_name, help=_summary, epilog=_epilog)(_make_stage_command(_name, _summary))
+
+
+@app.command(name="physopt", help=_STAGE_HELP["physopt"],
+             epilog=_options_epilog("physopt") if _WANTS_HELP and "physopt" in sys.argv[1:] else None)
+def cmd_physopt(
+    scene_dir: Path = typer.Argument(..., help="Scene directory (holds input/)."),
+    only: Optional[int] = typer.Option(None, "--only", help="Rerun only this object id and "
+                                                          "the objects it supports."),
+    set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
+) -> None:
+    from r2s.pipeline import run_single_stage
+
+    overrides = _parse_sets(set_)
+    if only is not None:
+        overrides["only"] = str(only)
+    run_single_stage(scene_dir, "physopt", overrides)
 
 
 @app.command()

@@ -118,3 +118,16 @@ def test_diffsim_pass_lowers_the_wrench_residual_of_an_overhanging_box(tmp_path:
     assert com_world[0] < 0.06 - 0.003  # the COM moved back towards the supporting box
     assert abs(box.pose[0, 3] - 0.06) < 0.01  # and the pose stayed near the observation
     assert 0.2 <= box.friction <= 1.0
+
+
+def test_only_reruns_one_object_and_keeps_the_rest(tmp_path: Path):
+    root = _stack_scene(tmp_path / "scene")
+    run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False))
+    first = read_state(root / "physopt")
+    result = run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False, only=2))
+    second = read_state(root / "physopt")
+    assert np.array_equal(first.object(1).pose, second.object(1).pose)  # fixed, untouched
+    assert abs(second.object(2).pose[2, 3] - 0.13) < 3e-3  # re-solved from init: on the box
+    assert result.summary["still_moving"] == 0
+    log = json.loads((root / "physopt" / "log.json").read_text())
+    assert log["only"] == {"object": 2, "rerun": [2]}

@@ -143,27 +143,34 @@ BULLET_MARGIN_M = 1e-3
 
 
 def depenetrate(world: World, order: Sequence[int], tolerance_m: float = 1.5e-3,
-                max_iterations: int = 60) -> dict[int, np.ndarray]:
+                max_iterations: int = 60, movable: set[int] | None = None
+                ) -> dict[int, np.ndarray]:
     """Push bodies apart along contact normals until no penetration exceeds ``tolerance_m``
     (measured as Bullet reports it, i.e. including its ~1 mm margin; bodies are pushed to
     an overlap of :data:`BULLET_MARGIN_M`, which is where Bullet itself rests them).
 
     Of two penetrating objects the one later in ``order`` (the child) moves, so that parents
-    stay fixed as in the hierarchical optimisation; the plane never moves. Translation only.
+    stay fixed as in the hierarchical optimisation; the plane and objects outside
+    ``movable`` (when given) never move. Translation only.
     Returns the new poses.
     """
     rank = {i: k for k, i in enumerate(order)}
     poses = world.poses()
     for _ in range(max_iterations):
-        pens = [p for p in penetrations(world) if p[2] > tolerance_m]
+        pens = [p for p in penetrations(world) if p[2] > tolerance_m
+                and (movable is None or p[0] in movable or p[1] in movable)]
         if not pens:
             break
         push: dict[int, np.ndarray] = {}
         for id_a, id_b, depth_m, normal in pens:
-            if id_b == 0 or rank.get(id_a, 0) > rank.get(id_b, 0):
+            can_a = movable is None or id_a in movable
+            can_b = id_b != 0 and (movable is None or id_b in movable)
+            if can_a and (not can_b or rank.get(id_a, 0) > rank.get(id_b, 0)):
                 mover, direction = id_a, normal
-            else:
+            elif can_b:
                 mover, direction = id_b, -normal
+            else:
+                continue
             amount = depth_m - BULLET_MARGIN_M
             cur = push.get(mover, np.zeros(3))
             # combine pushes: add only what the push so far lacks along this direction

@@ -48,6 +48,10 @@ class Options(StageOptions):
                                                        "this to be chosen.")
     tie_tolerance: float = Field(2.0, ge=0, description="Effects within this delta BIC of the "
                                                         "best are reported as indistinguishable.")
+    camera_rotation_penalty: float = Field(
+        20.0, ge=0, description="Extra evidence (BIC units) camera_rotation needs: a wrong "
+                                "camera correction moves every object, a wrong table_tilt "
+                                "none.")
     scale_sigma: float = Field(0.01, gt=0, description="Floor of the relative size error of one "
                                                        "prior (the priors' measured spread is "
                                                        "used when larger).")
@@ -60,9 +64,9 @@ class Options(StageOptions):
     physics_source: Literal["auto", "init", "geomopt", "physopt"] = Field(
         "auto", description="State rolled out (auto: geomopt, else init).")
     horizon_s: float = Field(1.0, gt=0, description="Rollout length, seconds.")
-    sigma_translation_m: float = Field(0.01, gt=0, description="Noise of an object's rollout "
+    sigma_translation_m: float = Field(0.015, gt=0, description="Noise of an object's rollout "
                                                                "displacement, metres.")
-    sigma_rotation_deg: float = Field(3.0, gt=0, description="Noise of an object's rollout "
+    sigma_rotation_deg: float = Field(5.0, gt=0, description="Noise of an object's rollout "
                                                              "rotation, degrees.")
     interaction_sigma_m: float = Field(0.005, gt=0, description="Noise of an observed push "
                                                                 "displacement component, metres.")
@@ -110,7 +114,8 @@ def run(ctx: StageContext) -> dict:
 
     before = measure_scene(paths.root, settings, model, lambda m, f: progress(m, 0.3 * f))
     diag = diagnose(before.residuals, effects, options.max_effects, options.min_evidence,
-                    options.tie_tolerance, lambda m, f: progress(m, 0.3 + 0.2 * f))
+                    options.tie_tolerance, lambda m, f: progress(m, 0.3 + 0.2 * f),
+                    penalties={"camera_rotation": options.camera_rotation_penalty})
     notes = list(before.residuals.notes)
     gt_before = scene_gt_errors(paths.root)
     gt_after = measured_after = None
@@ -155,6 +160,7 @@ def run(ctx: StageContext) -> dict:
     best = diag.rounds[0].best if diag.rounds else None
     summary = {"effect": ",".join(report["decision"]) or "none",
                "delta_bic": diag.chosen[0].delta_bic if diag.chosen else None,
+               "score": diag.chosen[0].score if diag.chosen else None,
                "size": diag.chosen[0].size if diag.chosen else None,
                "residual_before": diag.sse_before,
                "residual_after": report["residual_total"]["after"],

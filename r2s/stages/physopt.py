@@ -25,7 +25,8 @@ from r2s.io.atomic import atomic_write_json
 from r2s.io.mesh_io import load_mesh, welded
 from r2s.io.paths import ScenePaths
 from r2s.io.state import SceneState, read_state, write_state
-from r2s.physopt.hierarchy import order_root_to_leaves, parents_from_graph
+from r2s.errors import StageError
+from r2s.physopt.hierarchy import descendants, order_root_to_leaves, parents_from_graph
 from r2s.physopt.pybullet_world import (SimBody, build_world, depenetrate, drift, settle,
                                         support_centroid, world_gravity)
 from r2s.stages.base import StageContext, StageOptions, StageSpec
@@ -59,6 +60,9 @@ class Options(StageOptions):
     final_settle_shift_m: float = Field(
         0.15, gt=0, description="In the last round, the largest settling move accepted; an "
                                 "object that must move further is reported unresolved.")
+    only: Optional[int] = Field(None, description="Rerun only this object and the objects it "
+                                                   "supports; the rest keep their last physopt "
+                                                   "result and stay fixed.")
     use_diffsim: bool = Field(True, description="Optimise each object through the torch "
                                                 "simulator before the PyBullet check.")
     diffsim_iterations: int = Field(30, ge=0, description="Adam steps per object.")
@@ -98,6 +102,27 @@ def _inner_box(mesh) -> tuple[np.ndarray, np.ndarray]:
     return lo + 0.3 * (hi - lo), hi - 0.3 * (hi - lo)
 
 
+def _restrict_to_subtree(paths: ScenePaths, only: int, parents: Optional[dict[int, int]],
+                         params: dict, log: dict) -> None:
+    """``--only ID``: ID and its descendants start afresh; the rest keep their last physopt
+    result and are fixed."""
+    if only not in params:
+        raise StageError(f"physopt only={only}: no object {only} (objects: {sorted(params)})")
+    previous = read_state(paths.stage_dir("physopt"))
+    chosen = descendants(only, parents or {})
+    for obj in previous.objects:
+        if obj.id in params and obj.id not in chosen:
+            p = params[obj.id]
+            p["world_from_object"] = obj.pose.copy()
+            p["mass_kg"] = obj.mass_kg if obj.mass_kg is not None else p["mass_kg"]
+            if obj.com_in_object is not None:
+                p["com_in_object"] = np.asarray(obj.com_in_object, dtype=float)
+            p["friction"] = obj.friction if obj.friction is not None else p["friction"]
+    for i, p in params.items():
+        p["movable"] = i in chosen
+    log["only"] = {"object": only, "rerun": sorted(chosen)}
+
+
 def _initial_params(state: SceneState, meshes: dict, pieces: dict, opt: Options) -> dict:
     params = {}
     for obj in state.objects:
@@ -118,7 +143,9 @@ def _initial_params(state: SceneState, meshes: dict, pieces: dict, opt: Options)
 
 def _world_factory(params: dict, pieces: dict, state: SceneState, order: list[int], opt: Options):
     def make_world():
-        bodies = [SimBody(i, pieces[i], params[i]["world_from_object"], params[i]["mass_kg"],
+        # objects outside the optimised set are static (mass 0): they must not move
+        bodies = [SimBody(i, pieces[i], params[i]["world_from_object"],
+                          params[i]["mass_kg"] if params[i].get("movable", True) else 0.0,
                           params[i]["com_in_object"], params[i]["friction"]) for i in order]
         return build_world(bodies, state.support.point, state.support.normal,
                            opt.support_friction, state.gravity)
@@ -131,7 +158,7 @@ def _depenetrate(params: dict, pieces: dict, state: SceneState, order: list[int]
     world = _world_factory(params, pieces, state, order, opt)()
     try:
         before = {i: params[i]["world_from_object"] for i in order}
-        fixed = depenetrate(world, order)
+        fixed = depenetrate(world, order, movable={i for i in order if params[i].get("movable", True)})
     finally:
         world.close()
     for i in order:
@@ -240,6 +267,11 @@ def run(ctx: StageContext) -> dict:
     order = order_root_to_leaves([o.id for o in state.objects], parents, heights)
     log: dict = {"source": src, "order": order, "parents": parents, "objects": {i: [] for i in order},
                  "rounds": []}
+    if opt.only is not None:
+        _restrict_to_subtree(paths, opt.only, parents, params, log)
+        order_free = [i for i in order if params[i]["movable"]]
+    else:
+        order_free = order
 
     ctx.progress("depenetration", 0.1)
     _depenetrate(params, pieces, state, order, opt, log)
@@ -249,7 +281,7 @@ def run(ctx: StageContext) -> dict:
         except ModuleNotFoundError:
             optimise_objects = None
         if optimise_objects is not None:
-            optimise_objects(params, meshes, state, order, parents, opt, log, ctx.progress)
+            optimise_objects(params, meshes, state, order_free, parents, opt, log, ctx.progress)
 
     final = _verify_and_repair(params, pieces, state, order, opt, log, ctx.progress)
     moving = [i for i, (t, r) in final.items() if t > opt.tolerance_m or r > opt.tolerance_deg]

@@ -1,0 +1,252 @@
+"""What diagnose measured: the residuals of the current model, with their structure.
+
+Pure containers (frozen dataclasses of numpy arrays). They are filled from a scene by
+:mod:`r2s.diagnose.measure` and by hand in tests; the effects in
+:mod:`r2s.diagnose.effects` read them and never touch files.
+
+Frames: everything is in the world frame of the current model (the declared camera pose,
+corrected by the effects already kept in the scene's model). ``up`` is minus the model's
+gravity direction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Callable, Optional
+
+import numpy as np
+
+
+# ---- registration residual: does the observation agree with metric priors? -------------
+
+@dataclass(frozen=True)
+class ScaleObs:
+    """Registration of one object's metric prior to its observed points.
+
+    Attributes
+    ----------
+    id : object id.
+    scale : isotropic scale of the metric prior that fits the observation best
+        (1.0 = the observation has the prior's size).
+    depth_m : median observed depth (camera z) of the object's points, metres.
+    fitness : fraction of observed points within the inlier distance of the scaled prior.
+    rmse_m : RMS point-to-surface distance of the inliers, metres.
+    n_points : observed points used.
+    """
+
+    id: int
+    scale: float
+    depth_m: float
+    fitness: float = 1.0
+    rmse_m: float = 0.0
+    n_points: int = 0
+
+
+@dataclass(frozen=True)
+class RegistrationData:
+    """Per-object scale disagreement between priors and the observation.
+
+    ``scale_sigma`` is the relative scale uncertainty of one prior (a single-image shape
+    model is a few per cent off in size): the noise level of ``log(scale)``. An object whose
+    scale is far off (a misregistration) would dominate the block; the depth fits are
+    robust (Huber) and the noise level is a robust spread, but its SSE stays in the total.
+    """
+
+    objects: tuple[ScaleObs, ...]
+    scale_sigma: float = 0.01
+    min_fitness: float = 0.5
+
+    def used(self) -> tuple[ScaleObs, ...]:
+        """Objects whose registration is good enough to say something about scale."""
+        return tuple(o for o in self.objects
+                     if o.fitness >= self.min_fitness and np.isfinite(o.scale) and o.scale > 0)
+
+
+# ---- support residual: the table's normal against the declared gravity ------------------
+
+@dataclass(frozen=True)
+class SupportData:
+    """The support plane fitted to the table pixels, against the model's gravity.
+
+    Attributes
+    ----------
+    normal : (3,) unit normal of the fitted plane, world frame, pointing up.
+    point : (3,) a point on the plane.
+    up : (3,) unit, minus the model's gravity direction.
+    sigma_rad : noise level of each tilt component (fit noise plus unmodelled flatness).
+    camera_center : (3,) optical centre (the pivot of a camera rotation error).
+    n_points : table points in the fit.
+    """
+
+    normal: np.ndarray
+    point: np.ndarray
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    sigma_rad: float = float(np.radians(0.3))
+    camera_center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    n_points: int = 0
+    model_normal: Optional[np.ndarray] = None
+    """The table normal the model expects (None: ``up``, the table is level)."""
+    points_camera: Optional[np.ndarray] = None
+    """(N, 3) a subsample of the plane's inlier points, camera frame (a depth correction
+    refits the plane on them)."""
+    world_from_camera: Optional[np.ndarray] = None
+
+
+# ---- physical residual: motion of the reconstruction in a PyBullet rollout --------------
+
+@dataclass(frozen=True)
+class Motion:
+    """How one object moved over the rollout.
+
+    translation_m : (3,) COM displacement, world frame.
+    rotation_rad : (3,) rotation vector of ``R_end R_0^T`` (world frame axis * angle).
+    """
+
+    translation_m: np.ndarray
+    rotation_rad: np.ndarray
+
+    @property
+    def translation_norm_m(self) -> float:
+        return float(np.linalg.norm(self.translation_m))
+
+    @property
+    def angle_rad(self) -> float:
+        return float(np.linalg.norm(self.rotation_rad))
+
+
+@dataclass(frozen=True)
+class PhysicsModel:
+    """The parameters a physical hypothesis changes.
+
+    gravity : (3,) m/s^2, world frame.
+    com_shift_world_m : object id -> (3,) shift of its centre of mass from the current one.
+    friction : object id -> friction coefficient replacing the current one.
+    """
+
+    gravity: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -9.81]))
+    com_shift_world_m: dict = field(default_factory=dict)
+    friction: dict = field(default_factory=dict)
+
+    def with_changes(self, gravity: Optional[np.ndarray] = None,
+                     com_shift_world_m: Optional[dict] = None,
+                     friction: Optional[dict] = None) -> "PhysicsModel":
+        """A copy with ``gravity`` replaced and the per-object dicts updated."""
+        shifts = dict(self.com_shift_world_m)
+        for k, v in (com_shift_world_m or {}).items():
+            shifts[k] = np.asarray(v, dtype=np.float64)
+        fric = dict(self.friction)
+        fric.update(friction or {})
+        return PhysicsModel(
+            gravity=self.gravity if gravity is None else np.asarray(gravity, dtype=np.float64),
+            com_shift_world_m=shifts, friction=fric)
+
+
+@dataclass(frozen=True)
+class PhysObject:
+    """Static facts about one object at the start of the rollout.
+
+    com_world : (3,) centre of mass (current model), world frame.
+    support_contacts_world : (M, 3) points where the object rests on something below it.
+    radius_m : half the diagonal of its bounding box (a plausibility scale for COM shifts).
+    geometry_ok : its shape fits the observation well, so its motion is evidence about
+        physics rather than about a bad shape.
+    friction : its current friction coefficient.
+    """
+
+    id: int
+    com_world: np.ndarray
+    support_contacts_world: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    radius_m: float = 0.05
+    geometry_ok: bool = True
+    friction: float = 0.8
+    world_from_object: np.ndarray = field(default_factory=lambda: np.eye(4))
+    com_in_object: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """Its pose and current COM in the object frame (to express a COM shift there)."""
+    neighbours: frozenset = frozenset()
+    """Ids of the objects it touches."""
+
+
+Simulator = Callable[[PhysicsModel], dict]
+"""``simulate(model) -> {object id: Motion}``: a rollout of the scene under ``model``."""
+
+
+@dataclass(frozen=True)
+class PhysicsData:
+    """Rollout of the geometric reconstruction under the current model.
+
+    ``motion`` is the rollout under ``base``; ``simulate`` reruns it under another model
+    (effects call it to predict the residual they leave). Noise levels: a resting
+    reconstruction still settles by a few millimetres and degrees.
+    """
+
+    base: PhysicsModel
+    objects: dict
+    motion: dict
+    simulate: Optional[Simulator] = None
+    horizon_s: float = 1.0
+    sigma_translation_m: float = 0.015
+    sigma_rotation_rad: float = float(np.radians(5.0))
+    cap: float = 4.0
+
+    def moving(self, motion: dict, sigmas: float = 2.0) -> set:
+        """Ids whose motion in ``motion`` exceeds ``sigmas`` noise levels."""
+        return {i for i, m in motion.items()
+                if max(m.translation_norm_m / self.sigma_translation_m,
+                       m.angle_rad / self.sigma_rotation_rad) > sigmas}
+
+    def with_motion(self, base: PhysicsModel, motion: dict) -> "PhysicsData":
+        return replace(self, base=base, motion=motion)
+
+
+# ---- interaction residual: predicted against observed outcome of a push -----------------
+
+InteractionSimulator = Callable[[PhysicsModel], dict]
+"""``simulate(model) -> {object id: (3,) displacement}`` of the push under ``model``."""
+
+
+@dataclass(frozen=True)
+class InteractionData:
+    """An observed push: displacement of each object, observed and predicted.
+
+    observed_m / predicted_m : object id -> (3,) displacement of the object, world frame.
+    sigma_m : noise of an observed displacement component.
+    """
+
+    observed_m: dict
+    predicted_m: dict
+    simulate: Optional[InteractionSimulator] = None
+    sigma_m: float = 0.005
+    pushed_ids: tuple = ()
+
+    def with_prediction(self, predicted_m: dict) -> "InteractionData":
+        return replace(self, predicted_m=predicted_m)
+
+
+# ---- depth residual map (reported and plotted; the scale evidence is in registration) ---
+
+@dataclass(frozen=True)
+class DepthMapData:
+    """Observed minus rendered depth of the reconstruction, per pixel.
+
+    residual_m : (H, W) float, NaN where either is missing or the ids disagree.
+    depth_m : (H, W) observed depth.
+    on_object : (H, W) bool, pixels of an object (else table).
+    """
+
+    residual_m: np.ndarray
+    depth_m: np.ndarray
+    on_object: np.ndarray
+
+
+# ---- everything ---------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Residuals:
+    """All residual groups of one scene under its current model (any may be missing)."""
+
+    registration: Optional[RegistrationData] = None
+    support: Optional[SupportData] = None
+    physics: Optional[PhysicsData] = None
+    interaction: Optional[InteractionData] = None
+    depth_map: Optional[DepthMapData] = None
+    notes: tuple = ()

@@ -1,0 +1,126 @@
+"""Effect ``friction``: an object's friction differs from the default.
+
+A static scene at rest says almost nothing about friction (any friction above the
+slope's tangent holds it), so this effect is fitted only from an observed interaction
+(``input/interaction/``): a pushed object that slides further or less far than predicted.
+Without one it is reported as not identifiable instead of fitting noise. One parameter per
+object whose friction is changed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from r2s.diagnose.blocks import blocks_of, interaction_block, total_sse
+from r2s.diagnose.data import InteractionData, Residuals
+from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
+from r2s.io.state import SceneState
+
+FRICTION_RANGE = (0.05, 2.5)
+"""Search range of a body's friction coefficient."""
+
+
+class Friction(Effect):
+    name = "friction"
+    n_params = 1
+    level = "state"
+    preference = 40
+    signature = (
+        "In an observed push, an object moves further (less friction) or less far (more "
+        "friction) than the simulation with the default friction predicts, while the "
+        "static scene is consistent. Fit: per object, the friction coefficient that "
+        "makes the simulated push match the observed displacements (1-D search in log "
+        "friction), kept when it explains more than its parameter costs."
+    )
+
+    def fit(self, residuals: Residuals) -> EffectFit:
+        inter = residuals.interaction
+        if inter is None or not inter.observed_m:
+            return not_identifiable(
+                self.name, residuals,
+                "no observed interaction (input/interaction/): friction is not identifiable "
+                "from one static image")
+        if inter.simulate is None or residuals.physics is None:
+            return not_identifiable(self.name, residuals, "the push cannot be simulated")
+        n_obs = sum(b.n for b in blocks_of(residuals).values())
+        penalty = float(np.log(max(n_obs, 2)))
+        base_sse = total_sse(blocks_of(residuals))
+        trials = []
+        for obj_id in moved_objects(inter):
+            mu = fit_one(residuals, obj_id)
+            after = with_friction(residuals, {obj_id: mu})
+            trials.append((base_sse - total_sse(blocks_of(after)), obj_id, mu, after))
+        if not trials:
+            return not_identifiable(self.name, residuals, "no object moved in the push")
+        trials.sort(key=lambda t: -t[0])
+        kept = {t[1]: t[2] for t in trials if t[0] > penalty} or {trials[0][1]: trials[0][2]}
+        after = trials[0][3] if len(kept) == 1 else with_friction(residuals, kept)
+        default = {i: residuals.physics.objects[i].friction for i in kept
+                   if i in residuals.physics.objects}
+        params = {"objects": {str(i): {"friction": float(mu),
+                                       "default_friction": float(default.get(i, np.nan))}
+                              for i, mu in kept.items()}}
+        size = float(next(iter(kept.values()))) if len(kept) == 1 else \
+            float(max(kept.values(), key=lambda m: abs(np.log(m))))
+        return make_fit(self.name, residuals, after, params, self.n_params * len(kept), size,
+                        "", note=self.describe(params))
+
+    def apply_to_state(self, state: SceneState, params: dict) -> SceneState:
+        new = state.model_copy(deep=True)
+        for obj in new.objects:
+            entry = params.get("objects", {}).get(str(obj.id))
+            if entry is not None:
+                obj.friction = float(entry["friction"])
+        return new
+
+    def compose(self, old: dict, new: dict) -> dict:
+        objs = dict(old.get("objects", {}))
+        objs.update(new.get("objects", {}))
+        return {"objects": objs}
+
+    def describe(self, params: dict) -> str:
+        parts = [f"object {i}: friction {e['friction']:.2f}"
+                 for i, e in params.get("objects", {}).items()]
+        return "; ".join(parts) or "no friction change"
+
+
+def moved_objects(inter: InteractionData, sigmas: float = 2.0) -> list[int]:
+    """Objects that moved clearly in the observation or in the prediction."""
+    out = []
+    for obj_id, obs in inter.observed_m.items():
+        pred = inter.predicted_m.get(obj_id, np.zeros(3))
+        if max(np.linalg.norm(obs), np.linalg.norm(pred)) > sigmas * inter.sigma_m:
+            out.append(obj_id)
+    return sorted(out)
+
+
+def with_friction(residuals: Residuals, friction: dict) -> Residuals:
+    phys = residuals.physics
+    model = phys.base.with_changes(friction=friction)
+    inter = residuals.interaction
+    return replace(residuals, interaction=inter.with_prediction(inter.simulate(model)),
+                   physics=replace(phys, base=model))
+
+
+def fit_one(residuals: Residuals, obj_id: int) -> float:
+    """The friction of ``obj_id`` that best reproduces the observed push (others fixed)."""
+    inter, phys = residuals.interaction, residuals.physics
+
+    def cost(log_mu: float) -> float:
+        model = phys.base.with_changes(friction={obj_id: float(np.exp(log_mu))})
+        return interaction_block(inter.with_prediction(inter.simulate(model))).sse
+
+    lo, hi = np.log(FRICTION_RANGE[0]), np.log(FRICTION_RANGE[1])
+    grid = np.linspace(lo, hi, 7)
+    costs = [cost(g) for g in grid]
+    k = int(np.argmin(costs))
+    a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+    sol = minimize_scalar(cost, bounds=(a, b), method="bounded", options={"xatol": 0.02})
+    best = sol.x if sol.fun <= costs[k] else grid[k]
+    return float(np.exp(best))
+
+
+EFFECT = Friction()

@@ -1,0 +1,55 @@
+"""Effect ``table_tilt``: the table is not level; gravity is as declared.
+
+From one image this looks exactly like a camera rotation error on the support residual
+(the fitted normal is tilted from the declared up). The two differ only in physics: with a
+tilted table the reconstruction rests under the declared gravity; with a wrong camera it
+rests only under gravity perpendicular to the table. When the rollout cannot tell them
+apart, this one is preferred: it keeps the declared camera and changes no pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from r2s.diagnose.data import Residuals
+from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
+from r2s.diagnose.gravity import angle_axis, correction_to_level
+from r2s.io.state import SceneState
+
+
+class TableTilt(Effect):
+    name = "table_tilt"
+    n_params = 2
+    level = "state"
+    preference = 20
+    signature = (
+        "The support plane's normal is tilted away from the declared up, while the "
+        "reconstruction rests under the declared gravity (no common downhill motion). "
+        "Fit: the fitted table normal (tilt angle and axis); gravity is unchanged."
+    )
+
+    def fit(self, residuals: Residuals) -> EffectFit:
+        sup = residuals.support
+        if sup is None:
+            return not_identifiable(self.name, residuals, "no support plane was fitted")
+        normal = np.asarray(sup.normal, dtype=np.float64)
+        normal = normal / np.linalg.norm(normal)
+        after = replace(residuals, support=replace(sup, model_normal=normal))
+        angle, axis = angle_axis(correction_to_level(normal, sup.up, np.zeros(3)))
+        params = {"angle_deg": angle, "axis_world": axis.tolist(), "normal_world": normal.tolist()}
+        return make_fit(self.name, residuals, after, params, self.n_params, angle, "deg",
+                        note=self.describe(params))
+
+    def apply_to_state(self, state: SceneState, params: dict) -> SceneState:
+        new = state.model_copy(deep=True)
+        new.support.normal = [float(x) for x in params["normal_world"]]
+        new.support.tilted = True  # type: ignore[attr-defined]  (extra key: keep it tilted)
+        return new
+
+    def describe(self, params: dict) -> str:
+        return f"table tilted {params.get('angle_deg', 0.0):.2f} deg from level"
+
+
+EFFECT = TableTilt()

@@ -1,0 +1,236 @@
+"""Measure every residual group of a scene from loaded data (no scene-folder I/O here).
+
+Inputs are the (model-corrected) :class:`r2s.io.input_scene.InputScene` and the
+reconstructed objects as :class:`ObjectModel` (mesh in the object frame, pose, physics);
+outputs are the :mod:`r2s.diagnose.data` containers.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import trimesh
+from scipy import ndimage
+
+from r2s.console import ProgressFn, silent_progress
+from r2s.diagnose.data import (DepthMapData, InteractionData, PhysObject, PhysicsData,
+                               PhysicsModel, RegistrationData, ScaleObs, SupportData)
+from r2s.diagnose.measure.interaction import Push, simulate_push
+from r2s.diagnose.measure.physics import (BodySpec, WorldSpec, rollout_motion, support_contacts,
+                                          write_pieces)
+from r2s.diagnose.measure.scale_fit import SurfaceModel, fit_prior_scale, free_space
+from r2s.geometry.camera import backproject, camera_center
+from r2s.geometry.convex_cache import cached_convex_decomposition
+from r2s.geometry.mass_properties import mass_properties
+from r2s.geometry.plane import fit_plane_ransac
+from r2s.geometry.raycast import raycast_view
+from r2s.io.input_scene import InputScene
+
+
+@dataclass(frozen=True)
+class ObjectModel:
+    """One reconstructed object, loaded.
+
+    mesh : object frame; world_from_object : (4, 4); prior_area_m2 : surface area of its
+    metric prior (None when it has none: its size says nothing about the depth);
+    mass_kg, com_in_object, friction : None where the state has no value.
+    """
+
+    id: int
+    label: str
+    mesh: trimesh.Trimesh
+    world_from_object: np.ndarray
+    prior_area_m2: Optional[float] = None
+    mass_kg: Optional[float] = None
+    com_in_object: Optional[np.ndarray] = None
+    friction: Optional[float] = None
+
+
+@dataclass(frozen=True)
+class FitQuality:
+    """How well an object's shape fits its observed points (rigid or free-scale fit)."""
+
+    scale_obs: Optional[ScaleObs]
+    fitness: float
+    rmse_m: float
+
+
+def object_points_camera(inp: InputScene, obj_id: int, erode_px: int = 1) -> np.ndarray:
+    """(N, 3) camera-frame points of one instance (mask eroded against mixed pixels)."""
+    mask = inp.masks == obj_id
+    if erode_px > 0:
+        eroded = ndimage.binary_erosion(mask, iterations=erode_px)
+        mask = eroded if eroded.sum() >= 30 else mask
+    return backproject(inp.depth_m, inp.camera.K, np.eye(4), mask=mask)
+
+
+def fit_quality(inp: InputScene, obj: ObjectModel, seed: int = 0) -> FitQuality:
+    """Free-scale fit for an object with a metric prior, rigid fit otherwise."""
+    pts = object_points_camera(inp, obj.id)
+    if len(pts) < 30:
+        return FitQuality(None, 0.0, float("nan"))
+    view = free_space(inp.camera.K, inp.depth_m, inp.masks == obj.id)
+    object_from_camera = np.linalg.inv(obj.world_from_object) @ inp.camera.world_from_camera
+    has_prior = obj.prior_area_m2 is not None and obj.prior_area_m2 > 0
+    fit = fit_prior_scale(SurfaceModel(obj.mesh), pts, object_from_camera,
+                          fit_scale=has_prior, seed=seed, view=view, free_space_weight=0.5)
+    obs = None
+    if has_prior:
+        state_vs_prior = float(np.sqrt(obj.mesh.area / obj.prior_area_m2))
+        obs = ScaleObs(id=obj.id, scale=fit.scale * state_vs_prior,
+                       depth_m=float(np.median(pts[:, 2])), fitness=fit.fitness,
+                       rmse_m=fit.rmse_m, n_points=fit.n_points)
+    return FitQuality(obs, fit.fitness, fit.rmse_m)
+
+
+def registration_residual(qualities: dict[int, FitQuality], scale_sigma: float,
+                          min_fitness: float) -> RegistrationData:
+    """Per-object prior scales. The noise level is the larger of ``scale_sigma`` (a floor)
+    and the scales' own spread (1.4826 x median absolute deviation, so that one
+    misregistered object does not hide the rest): priors err in size independently, a
+    depth bias moves them all together, so the spread measures the priors' error."""
+    objs = tuple(q.scale_obs for _, q in sorted(qualities.items()) if q.scale_obs is not None)
+    data = RegistrationData(objects=objs, scale_sigma=scale_sigma, min_fitness=min_fitness)
+    logs = np.log([o.scale for o in data.used()])
+    if len(logs) >= 3:
+        spread = float(1.4826 * np.median(np.abs(logs - np.median(logs))))
+        data = RegistrationData(objects=objs, scale_sigma=max(scale_sigma, spread),
+                                min_fitness=min_fitness)
+    return data
+
+
+def support_residual(inp: InputScene, gravity: np.ndarray, sigma_rad: float,
+                     max_points: int = 60000, seed: int = 0) -> Optional[SupportData]:
+    """RANSAC plane of the table pixels (mask 0) against the model's gravity."""
+    pts = backproject(inp.depth_m, inp.camera.K, inp.camera.world_from_camera,
+                      mask=inp.masks == 0)
+    if len(pts) < 100:
+        return None
+    if len(pts) > max_points:
+        pts = pts[np.random.default_rng(seed).choice(len(pts), max_points, replace=False)]
+    up = -np.asarray(gravity, dtype=np.float64)
+    up /= np.linalg.norm(up)
+    centre = camera_center(inp.camera.world_from_camera)
+    try:
+        plane = fit_plane_ransac(pts, threshold_m=0.004, iterations=400, seed=seed, up_hint=up,
+                                 viewpoint=centre, max_tilt_deg=30.0)
+    except ValueError:
+        return None
+    inl = pts[plane.inliers]
+    if len(inl) > 5000:
+        inl = inl[np.random.default_rng(seed).choice(len(inl), 5000, replace=False)]
+    camera_from_world = np.linalg.inv(inp.camera.world_from_camera)
+    return SupportData(normal=plane.normal, point=plane.point, up=up, sigma_rad=sigma_rad,
+                       camera_center=centre, n_points=int(plane.inliers.sum()),
+                       points_camera=inl @ camera_from_world[:3, :3].T + camera_from_world[:3, 3],
+                       world_from_camera=np.asarray(inp.camera.world_from_camera))
+
+
+def depth_residual_map(inp: InputScene, objects: list[ObjectModel],
+                       support: Optional[SupportData]) -> DepthMapData:
+    """Observed minus rendered depth: objects where the rendered id matches, table pixels
+    against the fitted plane."""
+    cam = inp.camera
+    meshes = [o.mesh.copy().apply_transform(o.world_from_object) for o in objects]
+    rendered, index, _ = raycast_view(meshes, cam.K, cam.world_from_camera, cam.width, cam.height)
+    ids = np.array([o.id for o in objects] + [-1])
+    rendered_id = np.where(index >= 0, ids[np.clip(index, 0, len(objects))], 0)
+    obs = inp.depth_m.astype(np.float64)
+    residual = np.full(obs.shape, np.nan)
+    on_obj = (inp.masks > 0) & (rendered_id == inp.masks)
+    residual[on_obj] = obs[on_obj] - rendered[on_obj]
+    if support is not None:
+        plane_depth = _plane_depth(cam.K, cam.world_from_camera, support.point, support.normal,
+                                   cam.width, cam.height)
+        table = (inp.masks == 0) & np.isfinite(plane_depth)
+        residual[table] = obs[table] - plane_depth[table]
+    return DepthMapData(residual_m=residual, depth_m=obs, on_object=inp.masks > 0)
+
+
+def _plane_depth(K: np.ndarray, world_from_camera: np.ndarray, point: np.ndarray,
+                 normal: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(H, W) camera depth of the plane along every pixel ray (NaN when behind)."""
+    camera_from_world = np.linalg.inv(world_from_camera)
+    n_c = camera_from_world[:3, :3] @ np.asarray(normal, dtype=np.float64)
+    p_c = camera_from_world[:3, :3] @ np.asarray(point, dtype=np.float64) + camera_from_world[:3, 3]
+    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
+    rays = np.stack([u, v, np.ones_like(u)], axis=-1) @ np.linalg.inv(K).T  # z = 1
+    denom = rays @ n_c
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = (n_c @ p_c) / denom
+    return np.where(z > 0, z, np.nan)
+
+
+def world_spec(objects: list[ObjectModel], support_point: np.ndarray,
+               support_normal: np.ndarray, support_friction: float, cache_dir: Optional[Path],
+               density_kg_m3: float = 600.0, default_friction: float = 0.8,
+               convex_threshold: float = 0.05, max_pieces: int = 64) -> WorldSpec:
+    """Rigid bodies for PyBullet (convex pieces written to a temporary folder).
+
+    Mass, COM, friction and collision pieces as the export stage makes them (pass its
+    options): volume x density, the shape's centroid, ``default_friction``, CoACD pieces.
+    """
+    tmp = tempfile.TemporaryDirectory(prefix="r2s-diagnose-")
+    bodies = []
+    for o in objects:
+        pieces = cached_convex_decomposition(o.mesh, cache_dir, threshold=convex_threshold,
+                                             max_pieces=max_pieces)
+        props = mass_properties(o.mesh, pieces, mass_kg=o.mass_kg, density_kg_m3=density_kg_m3)
+        com = props.com_in_object if o.com_in_object is None else np.asarray(o.com_in_object)
+        files = write_pieces(pieces, Path(tmp.name), str(o.id))
+        ext = o.mesh.bounds[1] - o.mesh.bounds[0]
+        bodies.append(BodySpec(id=o.id, files=files, world_from_object=o.world_from_object,
+                               mass_kg=props.mass_kg, com_in_object=np.asarray(com, dtype=float),
+                               friction=default_friction if o.friction is None else o.friction,
+                               radius_m=float(0.5 * np.linalg.norm(ext)), mesh=o.mesh))
+    return WorldSpec(bodies, np.asarray(support_point, dtype=float),
+                     np.asarray(support_normal, dtype=float), float(support_friction), keep=tmp)
+
+
+def physics_residual(spec: WorldSpec, gravity: np.ndarray, geometry_ok: dict[int, bool],
+                     horizon_s: float, sigma_translation_m: float, sigma_rotation_rad: float,
+                     cap: float) -> PhysicsData:
+    """Rollout under the model's gravity, with the contacts each object rests on."""
+    base = PhysicsModel(gravity=np.asarray(gravity, dtype=np.float64))
+    motion = rollout_motion(spec, base, horizon_s)
+    contacts, neighbours = support_contacts(spec, -base.gravity)
+    objects = {}
+    for b in spec.bodies:
+        pose = np.asarray(b.world_from_object)
+        objects[b.id] = PhysObject(
+            id=b.id, com_world=pose[:3, :3] @ b.com_in_object + pose[:3, 3],
+            support_contacts_world=contacts.get(b.id, np.zeros((0, 3))), radius_m=b.radius_m,
+            geometry_ok=bool(geometry_ok.get(b.id, False)), friction=b.friction,
+            world_from_object=pose, com_in_object=np.asarray(b.com_in_object),
+            neighbours=frozenset(neighbours.get(b.id, set())))
+
+    def simulate(model: PhysicsModel) -> dict:
+        return rollout_motion(spec, model, horizon_s)
+
+    return PhysicsData(base=base, objects=objects, motion=motion, simulate=simulate,
+                       horizon_s=horizon_s, sigma_translation_m=sigma_translation_m,
+                       sigma_rotation_rad=sigma_rotation_rad, cap=cap)
+
+
+def interaction_residual(spec: WorldSpec, base: PhysicsModel, push: Push, observed: dict,
+                         sigma_m: float) -> InteractionData:
+    def simulate(model: PhysicsModel) -> dict:
+        return simulate_push(spec, model, push)
+
+    predicted = simulate(base)
+    known = {i: d for i, d in observed.items() if i in predicted}
+    return InteractionData(observed_m=known, predicted_m=predicted, simulate=simulate,
+                           sigma_m=sigma_m, pushed_ids=tuple(sorted(known)))
+
+
+def measure_fit_qualities(inp: InputScene, objects: list[ObjectModel],
+                          progress: ProgressFn = silent_progress) -> dict[int, FitQuality]:
+    out = {}
+    for k, o in enumerate(objects):
+        progress(f"registration of object {o.id}", k / max(len(objects), 1))
+        out[o.id] = fit_quality(inp, o)
+    return out

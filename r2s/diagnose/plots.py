@@ -1,0 +1,126 @@
+"""Pictures of the residual before and after (matplotlib, Agg; returns PNG bytes).
+
+``residual_figure``: the depth residual map before / after, the depth residual against
+depth, the per-block SSE (before, predicted with the effect, measured after the rerun),
+per-object prior scale and per-object rollout motion, before and after.
+"""
+
+from __future__ import annotations
+
+import io
+from typing import Optional
+
+import numpy as np
+
+from r2s.diagnose.data import Residuals
+from r2s.diagnose.structure import sse_by_block
+
+
+def _png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    return buf.getvalue()
+
+
+def _depth_map(ax, res: Optional[Residuals], title: str, vmax_mm: float) -> None:
+    ax.set_title(title, fontsize=9)
+    ax.axis("off")
+    if res is None or res.depth_map is None:
+        ax.text(0.5, 0.5, "n/a", ha="center", va="center", transform=ax.transAxes)
+        return
+    im = ax.imshow(res.depth_map.residual_m * 1000.0, cmap="coolwarm", vmin=-vmax_mm,
+                   vmax=vmax_mm)
+    ax.figure.colorbar(im, ax=ax, fraction=0.035, label="observed - model (mm)")
+
+
+def _vs_depth(ax, runs: list[tuple[str, Optional[Residuals]]]) -> None:
+    ax.set_title("depth residual on objects vs depth", fontsize=9)
+    for label, res in runs:
+        if res is None or res.depth_map is None:
+            continue
+        dm = res.depth_map
+        ok = dm.on_object & np.isfinite(dm.residual_m) & np.isfinite(dm.depth_m)
+        if ok.sum() < 20:
+            continue
+        z, r = dm.depth_m[ok], dm.residual_m[ok] * 1000.0
+        edges = np.quantile(z, np.linspace(0, 1, 9))
+        mid = 0.5 * (edges[1:] + edges[:-1])
+        med = [np.median(r[(z >= a) & (z <= b)]) for a, b in zip(edges[:-1], edges[1:])]
+        ax.plot(mid, med, "o-", label=label)
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set_xlabel("observed depth (m)")
+    ax.set_ylabel("median residual (mm)")
+    ax.legend(fontsize=8)
+
+
+def _sse_bars(ax, before: Residuals, predicted: Optional[Residuals],
+              measured: Optional[Residuals]) -> None:
+    ax.set_title("normalised residual (SSE) per block", fontsize=9)
+    runs = [("before", sse_by_block(before)), ("predicted", sse_by_block(predicted)),
+            ("after rerun", sse_by_block(measured))]
+    names = sorted(set().union(*[set(r) for _, r in runs]))
+    x = np.arange(len(names))
+    for k, (label, sse) in enumerate(runs):
+        if sse:
+            ax.bar(x + (k - 1) * 0.27, [sse.get(n, 0.0) for n in names], 0.27, label=label)
+    ax.set_xticks(x, names, fontsize=8)
+    ax.set_yscale("symlog")
+    ax.legend(fontsize=8)
+
+
+def _scales(ax, runs: list[tuple[str, Optional[Residuals]]]) -> None:
+    ax.set_title("prior scale that fits the observation", fontsize=9)
+    for k, (label, res) in enumerate(runs):
+        if res is None or res.registration is None:
+            continue
+        objs = res.registration.objects
+        ax.bar(np.arange(len(objs)) + (k - 0.5) * 0.4, [o.scale - 1.0 for o in objs], 0.4,
+               label=label)
+        ax.set_xticks(np.arange(len(objs)), [str(o.id) for o in objs], fontsize=8)
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set_xlabel("object")
+    ax.set_ylabel("scale - 1")
+    ax.legend(fontsize=8)
+
+
+def _motion(ax, runs: list[tuple[str, Optional[Residuals]]]) -> None:
+    ax.set_title("rollout motion per object", fontsize=9)
+    for k, (label, res) in enumerate(runs):
+        if res is None or res.physics is None:
+            continue
+        ids = sorted(res.physics.motion)
+        vals = [res.physics.motion[i].translation_norm_m * 1000.0 for i in ids]
+        ax.bar(np.arange(len(ids)) + (k - 0.5) * 0.4, vals, 0.4, label=f"{label} (mm)")
+        ax.set_xticks(np.arange(len(ids)), [str(i) for i in ids], fontsize=8)
+    ax.set_yscale("symlog")
+    ax.set_xlabel("object")
+    ax.legend(fontsize=8)
+
+
+def residual_figure(before: Residuals, predicted: Optional[Residuals],
+                    measured_after: Optional[Residuals], title: str) -> bytes:
+    """PNG bytes of the before/after figure."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = [("before", before), ("after", measured_after if measured_after is not None
+                                 else predicted)]
+    vmax = 10.0
+    if before.depth_map is not None:
+        r = before.depth_map.residual_m
+        if np.isfinite(r).any():
+            vmax = float(max(2.0, np.nanpercentile(np.abs(r) * 1000.0, 95)))
+    fig, axes = plt.subplots(2, 3, figsize=(15, 8.5))
+    _depth_map(axes[0, 0], before, "depth residual before", vmax)
+    _depth_map(axes[0, 1], measured_after, "depth residual after (rerun)", vmax)
+    _vs_depth(axes[0, 2], runs)
+    _sse_bars(axes[1, 0], before, predicted, measured_after)
+    _scales(axes[1, 1], runs)
+    _motion(axes[1, 2], runs)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    data = _png(fig)
+    plt.close(fig)
+    return data

@@ -1,0 +1,213 @@
+"""Read what diagnose needs from a scene folder and measure its residuals.
+
+The one module of :mod:`r2s.diagnose` that reads a scene directory (the stage's ``run``
+and the before/after rerun call it); everything it calls works on loaded data.
+
+- registration and depth residuals: the ``init`` state (the fit to the observation);
+- physical residual: the latest *geometric* state (``geomopt``, else ``init``), before
+  physopt has tuned physics to hide it, with the model's state-level effects applied;
+- support residual: a plane fitted afresh to the table pixels of ``input/``;
+- interaction residual: ``input/interaction/push.json`` when present.
+
+Everything is measured on the input as the scene's model corrects it
+(:func:`r2s.diagnose.model.corrected_input`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Optional
+
+import numpy as np
+
+from r2s.console import ProgressFn, silent_progress
+from r2s.diagnose.data import Residuals
+from r2s.diagnose.gt_errors import export_gt_errors, metrics_subset, state_gt_errors
+from r2s.diagnose.measure.interaction import read_push
+from r2s.diagnose.measure.observe import (FitQuality, ObjectModel, depth_residual_map,
+                                          interaction_residual, measure_fit_qualities,
+                                          physics_residual, registration_residual,
+                                          support_residual, world_spec)
+from r2s.diagnose.model import corrected_input, corrected_state
+from r2s.errors import StageError
+from r2s.io.input_scene import InputScene, load_input, read_json_file
+from r2s.io.mesh_io import load_mesh
+from r2s.io.paths import ScenePaths
+from r2s.io.scene_json import read_export_scene, read_gt_scene
+from r2s.io.state import SceneState, read_state
+from r2s.stages.manifest import load_manifest
+
+PUSH_FILE = "push.json"
+
+
+@dataclass(frozen=True)
+class MeasureSettings:
+    """Noise levels and choices of the measurement (the stage's options)."""
+
+    scale_sigma: float = 0.01
+    support_sigma_deg: float = 0.3
+    min_fitness: float = 0.6
+    max_rmse_m: float = 0.004
+    physics_source: str = "auto"
+    physics: bool = True
+    horizon_s: float = 1.0
+    sigma_translation_m: float = 0.015
+    sigma_rotation_deg: float = 5.0
+    cap: float = 4.0
+    interaction_sigma_m: float = 0.005
+    density_kg_m3: Optional[float] = None
+    default_friction: Optional[float] = None
+    """None: the export stage's (recorded, else default) options, so that diagnose rolls
+    out the bodies the judge would see."""
+
+
+@dataclass
+class Measured:
+    """Residuals of one scene and what they were measured on."""
+
+    residuals: Residuals
+    physics_stage: Optional[str]
+    qualities: dict = field(default_factory=dict)
+    input_scene: Optional[InputScene] = None
+    keep: list = field(default_factory=list)  # temporary folders that must outlive residuals
+
+
+def _done(paths: ScenePaths, stage: str) -> bool:
+    rec = load_manifest(paths.manifest).stages.get(stage)
+    return rec is not None and rec.status == "done" and paths.state(stage).is_file()
+
+
+def physics_stage(paths: ScenePaths, source: str) -> str:
+    """The state the rollout uses: ``source``, or geomopt / init for ``auto``."""
+    if source != "auto":
+        if not _done(paths, source):
+            raise StageError(f"stage '{source}' has no result in {paths.root}; run it first")
+        return source
+    for name in ("geomopt", "init"):
+        if _done(paths, name):
+            return name
+    raise StageError(f"{paths.root}: no reconstruction yet; run 'r2s init' first")
+
+
+def export_options(paths: ScenePaths) -> dict:
+    """The export stage's options as recorded in the manifest, else its defaults."""
+    from r2s.stages.registry import get_stage
+
+    spec = get_stage("export")
+    out = spec.options_type().model_dump()
+    rec = load_manifest(paths.manifest).stages.get("export")
+    if rec is not None and rec.options:
+        out.update({k: v for k, v in rec.options.items() if k in out})
+    return out
+
+
+def load_objects(paths: ScenePaths, stage: str, state: SceneState, inp: InputScene
+                 ) -> list[ObjectModel]:
+    """The state's objects with meshes, and their metric priors' areas."""
+    priors: dict[int, float] = {}
+    for spec in inp.objects:
+        if spec.prior_mesh is not None:
+            priors[spec.id] = float(load_mesh(spec.prior_mesh).area)
+    out = []
+    for obj in state.objects:
+        mesh = load_mesh(paths.stage_dir(stage) / obj.mesh)
+        from_prior = obj.source in ("prior", None, "")
+        out.append(ObjectModel(
+            id=obj.id, label=obj.label, mesh=mesh, world_from_object=obj.pose,
+            prior_area_m2=priors.get(obj.id) if from_prior else None, mass_kg=obj.mass_kg,
+            com_in_object=None if obj.com_in_object is None else np.asarray(obj.com_in_object),
+            friction=obj.friction))
+    return out
+
+
+def measure_scene(scene_dir: Path, settings: MeasureSettings,
+                  model: Optional[Mapping[str, Any]] = None,
+                  progress: ProgressFn = silent_progress) -> Measured:
+    """Every residual group of the scene under ``model`` (default: the manifest's)."""
+    paths = ScenePaths(Path(scene_dir))
+    if model is None:
+        model = load_manifest(paths.manifest).model
+    if not _done(paths, "init"):
+        raise StageError(f"{paths.root}: diagnose needs the 'init' stage; run 'r2s init' first")
+    inp = corrected_input(load_input(paths.root), model)
+    init_state = read_state(paths.stage_dir("init"))
+    init_objects = load_objects(paths, "init", init_state, inp)
+
+    progress("registration residual", 0.05)
+    qualities = measure_fit_qualities(inp, init_objects,
+                                      lambda m, f: progress(m, 0.05 + 0.35 * f))
+    registration = registration_residual(qualities, settings.scale_sigma, settings.min_fitness)
+    gravity = np.asarray(init_state.gravity, dtype=np.float64)
+    support = support_residual(inp, gravity, float(np.radians(settings.support_sigma_deg)))
+    progress("depth residual", 0.42)
+    depth_map = depth_residual_map(inp, init_objects, support)
+
+    physics = interaction = None
+    stage = None
+    keep: list = []
+    notes: list[str] = []
+    if settings.physics:
+        stage = physics_stage(paths, settings.physics_source)
+        progress(f"rollout of the {stage} state", 0.5)
+        state = corrected_state(read_state(paths.stage_dir(stage)), model)
+        objects = load_objects(paths, stage, state, inp)
+        ex = export_options(paths)
+        spec = world_spec(objects, state.support.point, state.support.normal,
+                          state.support.friction, paths.root / ".cache" / "convex",
+                          settings.density_kg_m3 or ex["density_kg_m3"],
+                          settings.default_friction or ex["default_friction"],
+                          ex["convex_threshold"], ex["max_convex_pieces"])
+        keep.append(spec)
+        ok = {i: (q.fitness >= settings.min_fitness
+                  and (not np.isfinite(q.rmse_m) or q.rmse_m <= settings.max_rmse_m))
+              for i, q in qualities.items()}
+        physics = physics_residual(spec, np.asarray(state.gravity, dtype=np.float64), ok,
+                                   settings.horizon_s, settings.sigma_translation_m,
+                                   float(np.radians(settings.sigma_rotation_deg)), settings.cap)
+        push_path = paths.interaction / PUSH_FILE
+        if push_path.is_file():
+            progress("simulating the observed push", 0.8)
+            push, observed = read_push(push_path)
+            interaction = interaction_residual(spec, physics.base, push, observed,
+                                               settings.interaction_sigma_m)
+        elif paths.interaction.is_dir():
+            notes.append(f"{paths.interaction}: no {PUSH_FILE}; the interaction is not used")
+    residuals = Residuals(registration=registration, support=support, physics=physics,
+                          interaction=interaction, depth_map=depth_map, notes=tuple(notes))
+    return Measured(residuals, stage, qualities, inp, keep)
+
+
+def _centroid(mesh_path: Path, world_from_object: np.ndarray) -> np.ndarray:
+    mesh = load_mesh(mesh_path)
+    return np.asarray(world_from_object)[:3, :3] @ mesh.centroid + np.asarray(world_from_object)[:3, 3]
+
+
+def _latest_geometry_stage(paths: ScenePaths) -> Optional[str]:
+    for name in ("physopt", "geomopt", "init"):
+        if _done(paths, name):
+            return name
+    return None
+
+
+def scene_gt_errors(scene_dir: Path) -> Optional[dict]:
+    """Ground-truth errors of the scene's export and judge metrics; None without gt/."""
+    paths = ScenePaths(Path(scene_dir))
+    gt = read_gt_scene(paths.gt_scene)
+    if gt is None:
+        return None
+    out: dict[str, Any] = {}
+    metrics = read_json_file(paths.metrics) if paths.metrics.is_file() else None
+    out.update(metrics_subset(metrics))
+    if paths.export_scene.is_file():
+        out.update(export_gt_errors(read_export_scene(paths.export_scene), gt))
+    stage = _latest_geometry_stage(paths)
+    if stage is not None:
+        state = read_state(paths.stage_dir(stage))
+        mine = {o.id: _centroid(paths.stage_dir(stage) / o.mesh, o.pose) for o in state.objects}
+        truth = {o.id: _centroid(paths.gt / o.mesh, np.asarray(o.world_from_object))
+                 for o in gt.objects}
+        out.update(state_gt_errors(mine, np.asarray(state.support.normal), gt, truth))
+        out["state_stage"] = stage
+    out["injected_effects"] = (gt.model_extra or {}).get("injected_effects")
+    return out
