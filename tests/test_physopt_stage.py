@@ -25,21 +25,26 @@ def _pose(z: float, x: float = 0.0) -> list:
     return p.tolist()
 
 
-def _stack_scene(root: Path) -> Path:
-    """init/ state: a 10 cm box sunk 4 mm into the table, a 6 cm box sunk 3 mm into it."""
+def _box_scene(root: Path, boxes: list[tuple[int, str, float, list]]) -> Path:
+    """init/ state of cube boxes (id, label, edge m, world_from_object), init marked done."""
     d = root / "init"
     (d / "meshes").mkdir(parents=True)
-    save_mesh(trimesh.creation.box([0.1, 0.1, 0.1]), d / "meshes" / "1.glb")
-    save_mesh(trimesh.creation.box([0.06, 0.06, 0.06]), d / "meshes" / "2.glb")
+    objects = []
+    for oid, label, edge_m, pose in boxes:
+        save_mesh(trimesh.creation.box([edge_m] * 3), d / "meshes" / f"{oid}.glb")
+        objects.append(ObjectState(id=oid, label=label, mesh=f"meshes/{oid}.glb",
+                                   world_from_object=pose))
     write_state(d, SceneState(stage="init", support=SupportPlane(point=[0, 0, 0], normal=[0, 0, 1]),
-                              objects=[ObjectState(id=1, label="big", mesh="meshes/1.glb",
-                                                   world_from_object=_pose(0.046)),
-                                       ObjectState(id=2, label="small", mesh="meshes/2.glb",
-                                                   world_from_object=_pose(0.127, 0.01))]))
+                              objects=objects))
     m = load_manifest(root / "manifest.json")
     m.stages["init"] = StageRecord(status="done")
     save_manifest(root / "manifest.json", m)
     return root
+
+
+def _stack_scene(root: Path) -> Path:
+    """A 10 cm box sunk 4 mm into the table, a 6 cm box sunk 3 mm into it."""
+    return _box_scene(root, [(1, "big", 0.1, _pose(0.046)), (2, "small", 0.06, _pose(0.127, 0.01))])
 
 
 def test_depenetrate_moves_children_not_parents():
@@ -95,19 +100,8 @@ def test_diffsim_pass_lowers_the_wrench_residual_of_an_overhanging_box(tmp_path:
     """A 6 cm box whose COM hangs 10 mm past the edge of a 10 cm box cannot be balanced by
     contact forces; the differentiable pass lowers its wrench residual by moving the COM
     (within its bounds) and the pose back over the support, staying near the observation."""
-    root = tmp_path / "scene"
-    d = root / "init"
-    (d / "meshes").mkdir(parents=True)
-    save_mesh(trimesh.creation.box([0.1, 0.1, 0.1]), d / "meshes" / "1.glb")
-    save_mesh(trimesh.creation.box([0.06, 0.06, 0.06]), d / "meshes" / "2.glb")
-    write_state(d, SceneState(stage="init", support=SupportPlane(point=[0, 0, 0], normal=[0, 0, 1]),
-                              objects=[ObjectState(id=1, label="base", mesh="meshes/1.glb",
-                                                   world_from_object=_pose(0.05)),
-                                       ObjectState(id=2, label="overhang", mesh="meshes/2.glb",
-                                                   world_from_object=_pose(0.13, 0.06))]))
-    m = load_manifest(root / "manifest.json")
-    m.stages["init"] = StageRecord(status="done")
-    save_manifest(root / "manifest.json", m)
+    root = _box_scene(tmp_path / "scene", [(1, "base", 0.1, _pose(0.05)),
+                                           (2, "overhang", 0.06, _pose(0.13, 0.06))])
     run_stage(PHYSOPT, root, PhysOptions(max_rounds=0))
     log = json.loads((root / "physopt" / "log.json").read_text())
     note = next(n for n in log["objects"]["2"] if n.startswith("diffsim"))

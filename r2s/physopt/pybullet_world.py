@@ -16,6 +16,7 @@ import numpy as np
 import pybullet as pb
 import trimesh
 
+from r2s.metrics.stability import rotation_angle_deg
 from r2s.sim.pybullet_bodies import (add_rigid_body, add_support_plane, body_world_from_object,
                                      connect_direct, set_body_pose)
 
@@ -76,12 +77,6 @@ def build_world(bodies: Sequence[SimBody], support_point: Sequence[float],
     return World(client, ids, coms, tmp, tuple(float(g) for g in gravity))
 
 
-def rotation_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle of the relative rotation between two (3, 3) rotations, degrees."""
-    cos = (np.trace(a[:3, :3].T @ b[:3, :3]) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-
-
 def com_world(pose: np.ndarray, com: np.ndarray) -> np.ndarray:
     return pose[:3, :3] @ com + pose[:3, 3]
 
@@ -98,7 +93,7 @@ def drift(world: World, start: dict[int, np.ndarray], duration_s: float,
     for i, pose in end.items():
         c = world.coms[i]
         out[i] = (float(np.linalg.norm(com_world(pose, c) - com_world(start[i], c))),
-                  rotation_angle_deg(start[i], pose))
+                  float(rotation_angle_deg(start[i][:3, :3], pose[:3, :3])))
     return out
 
 
