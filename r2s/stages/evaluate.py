@@ -18,7 +18,7 @@ from __future__ import annotations
 import io
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Literal, Optional
 
 import numpy as np
 import pybullet as pb
@@ -73,6 +73,9 @@ class Options(StageOptions):
         10000, ge=100, description="Surface / volume samples per object for CD, F-score, IoU.")
     seed: int = Field(0, description="Seed of the geometry sampling.")
     render: bool = Field(True, description="Write rollout.png (first and last frame).")
+    engine: Literal["pybullet", "mujoco"] = Field(
+        "pybullet", description="Engine that judges stability (mujoco uses export/scene.xml; "
+                                "penetration and pictures always come from PyBullet).")
     render_width_px: int = Field(
         640, ge=32, description="Width of each frame of rollout.png (the camera image is scaled).")
 
@@ -216,6 +219,11 @@ def run(ctx: StageContext) -> dict:
     progress("loading export/", 0.0)
     sim = _simulate(paths, options, progress)
     pen, export_objects = sim.pen, sim.loaded.scene.objects
+    if options.engine == "mujoco":
+        from r2s.sim.mujoco_rollout import mujoco_rollout
+
+        progress("MuJoCo rollout", 0.35)
+        sim.traj = mujoco_rollout(paths.export, options.duration_s, options.record_hz)
     per_stab = object_stability(sim.traj, options.stable_translation_m, options.stable_rotation_deg)
     gt = read_gt_scene(paths.gt_scene)
 
@@ -257,6 +265,7 @@ def run(ctx: StageContext) -> dict:
             "pybullet_mesh_margin_m": PYBULLET_MESH_MARGIN_M,
         },
         "rendering": rendering,
+        "engine": options.engine,
         "rollout": {"duration_s": sim.traj.duration_s, "samples": int(len(sim.traj.times_s))},
         "gt": {"present": gt is not None, "matched_ids": sorted(export_ids & gt_ids),
                "missing_in_export": sorted(gt_ids - export_ids)},
