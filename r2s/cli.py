@@ -137,6 +137,38 @@ def synth(
 
 
 @app.command()
+def predict(
+    scene_dir: Path = typer.Argument(..., help="Scene directory with export/."),
+    action: Path = typer.Option(..., "--action", help="Push action JSON (see docs/interaction.md)."),
+) -> None:
+    """Replay a pusher trajectory on export/ in PyBullet; writes predict/."""
+    from r2s.console import print_table
+    from r2s.interaction.predict import predict as run_predict
+
+    summary = run_predict(scene_dir, action)
+    print_table("predicted displacement", ["object", "moved [mm]"],
+                [[str(o["id"]), f"{o['displacement_m'] * 1000:.1f}"] for o in summary["objects"]])
+
+
+@app.command()
+def declutter(
+    scene_dir: Path = typer.Argument(..., help="Scene directory with export/."),
+) -> None:
+    """Plan a removal order (children first) in which each removal leaves the rest at rest."""
+    from r2s.console import print_table
+    from r2s.interaction.declutter import declutter as run_declutter
+
+    report = run_declutter(scene_dir)
+    gt = {s["id"]: s for s in report.get("ground_truth", {}).get("steps", [])}
+    rows = [[str(k + 1), str(s["id"]), f"{s['translation_m'] * 1000:.1f}",
+             "yes" if s["at_rest"] else "no",
+             ("yes" if gt[s["id"]]["at_rest"] else "no") if s["id"] in gt else "-"]
+            for k, s in enumerate(report["steps"])]
+    print_table(f"removal order (success {report['success_rate']:.0%})",
+                ["step", "object", "disturbance [mm]", "rest at rest", "on gt"], rows)
+
+
+@app.command()
 def report(
     scene_dirs: List[Path] = typer.Argument(..., help="Scene directories with evaluate/metrics.json."),
     out: Optional[Path] = typer.Option(None, help="Also write the table as markdown here."),
