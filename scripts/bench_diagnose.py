@@ -6,7 +6,9 @@ with the effect recorded only in gt/, run the pipeline stages, run ``diagnose`` 
 reruns the affected stages on a copy with the effect in the model), and tabulate: was the
 effect named first, the fitted size against the injected one, and the ground-truth error
 before -> after. Friction is only identifiable from an interaction, so its scenes get an
-observed push (``input/interaction/push.json``) simulated on the ground truth.
+observed push (``input/interaction/push.json``) simulated on the ground truth. A COM offset
+is only visible when the rest pose needs it, so COM scenes are drawn (up to COM_TRIES synth
+seeds) until the shifted object, given back its uniform COM, moves in the ground truth.
 
 Usage (regenerates the table in docs/diagnose.md between its bench markers):
   python scripts/bench_diagnose.py --seeds 1 --clean 2 --out docs/diagnose.md
@@ -51,18 +53,76 @@ BEGIN, END = "<!-- bench_diagnose:begin -->", "<!-- bench_diagnose:end -->"
 
 # ---- scenes ------------------------------------------------------------------------------
 
+COM_TRIES = 8
+"""A COM offset shows only when the rest pose needs it: synth seeds tried per COM scene."""
+
+
 def make_scene(root: Path, case: str, seed: int, count: int) -> Path:
+    import shutil
+
     from r2s.synth.generate import SynthOptions, synthesize
 
     scene = root / f"{case}_s{seed}"
-    if not (scene / "gt" / "scene.json").is_file():
+    tries = COM_TRIES if case == "com_offset" else 1
+    for k in range(tries):
+        if (scene / "gt" / "scene.json").is_file():
+            break
         t0 = time.perf_counter()
-        synthesize(scene, SynthOptions(objects="ycb", count=count, seed=1000 + seed,
+        synthesize(scene, SynthOptions(objects="ycb", count=count, seed=1000 * (k + 1) + seed,
                                        effects=CASES[case][0]))
-        print(f"synth {scene.name}: {time.perf_counter() - t0:.0f} s", flush=True)
+        print(f"synth {scene.name} (seed {1000 * (k + 1) + seed}): "
+              f"{time.perf_counter() - t0:.0f} s", flush=True)
+        if case == "com_offset" and not com_offset_observable(scene):
+            print(f"  {scene.name}: the shifted COM does not change the rest pose; next seed",
+                  flush=True)
+            if k + 1 < tries:
+                shutil.rmtree(scene)
     if case == "friction" and not (scene / "input" / "interaction" / "push.json").is_file():
         write_observed_push(scene)
     return scene
+
+
+def gt_world(scene: Path, com_override: Optional[dict] = None):
+    """The ground truth as PyBullet bodies (``com_override``: id -> COM in object frame)."""
+    from r2s.diagnose.measure.observe import ObjectModel, world_spec
+    from r2s.io.mesh_io import load_mesh
+    from r2s.io.scene_json import read_gt_scene
+
+    paths = ScenePaths(scene)
+    gt = read_gt_scene(paths.gt_scene)
+    com_override = com_override or {}
+    objects = [ObjectModel(o.id, o.label, load_mesh(paths.gt / o.mesh),
+                           np.asarray(o.world_from_object), None, o.mass_kg,
+                           np.asarray(com_override.get(o.id, o.com_in_object)), o.friction)
+               for o in gt.objects]
+    return gt, world_spec(objects, gt.support.point, gt.support.normal, gt.support.friction,
+                          paths.root / ".cache" / "convex")
+
+
+def com_offset_observable(scene: Path) -> bool:
+    """Does the shifted object topple or rock in the ground truth with its COM put back
+    (uniform)? A round object on a point contact is left out: its orientation is not seen,
+    so an offset COM only steadies it, and that shows as no particular pose."""
+    from r2s.diagnose.data import PhysicsModel
+    from r2s.diagnose.measure.physics import rollout_motion, support_contacts
+    from r2s.io.scene_json import read_gt_scene
+
+    gt = read_gt_scene(ScenePaths(scene).gt_scene)
+    recs = ((gt.model_extra or {}).get("injected_effects") or {}).get("com_offset_m", {})
+    uniform = {r["id"]: r["original_com_in_object"] for r in recs.get("objects", [])}
+    if not uniform:
+        return False
+    _, spec = gt_world(scene, uniform)
+    up = -np.asarray(gt.gravity) / np.linalg.norm(gt.gravity)
+    contacts, _ = support_contacts(spec, up)
+    motion = rollout_motion(spec, PhysicsModel(gravity=np.asarray(gt.gravity)), 1.0)
+    for i in uniform:
+        flat = contacts[i] - (contacts[i] @ up)[:, None] * up
+        rolls_anywhere = len(flat) == 0 or np.ptp(flat, axis=0).max() < 0.005  # a ball
+        if not rolls_anywhere and (motion[i].translation_norm_m > 0.01
+                                   or np.degrees(motion[i].angle_rad) > 5.0):
+            return True
+    return False
 
 
 def write_observed_push(scene: Path) -> None:
@@ -73,20 +133,12 @@ def write_observed_push(scene: Path) -> None:
     """
     from r2s.diagnose.data import PhysicsModel
     from r2s.diagnose.measure.interaction import plan_push, simulate_push
-    from r2s.diagnose.measure.observe import ObjectModel, world_spec
-    from r2s.io.mesh_io import load_mesh
-    from r2s.io.scene_json import read_gt_scene
 
     paths = ScenePaths(scene)
-    gt = read_gt_scene(paths.gt_scene)
+    gt, spec = gt_world(scene)
     extra = gt.model_extra or {}
     visible = {o.id for o in gt.objects if (o.model_extra or {}).get("in_input", True)}
     stacked = set((extra.get("contacts") or {}).get("stacked_ids", []))
-    objects = [ObjectModel(o.id, o.label, load_mesh(paths.gt / o.mesh),
-                           np.asarray(o.world_from_object), None, o.mass_kg,
-                           np.asarray(o.com_in_object), o.friction) for o in gt.objects]
-    spec = world_spec(objects, gt.support.point, gt.support.normal, gt.support.friction,
-                      paths.root / ".cache" / "convex")
     camera = np.asarray(extra["camera"]["world_from_camera"])[:3, 3]
     up = -np.asarray(gt.gravity) / np.linalg.norm(gt.gravity)
     best = None
@@ -210,7 +262,7 @@ def row(scene: Path, case: str, seed: int, seconds: float) -> dict:
         "named_first": (report["decision"][:1] == [expected]) if expected else
         (report["decision"] == []),
         "ties": report["ties"][0] if report["ties"] else [],
-        "ranking": [(f["effect"], round(f["delta_bic"], 1)) for f in ranking],
+        "ranking": [(f["effect"], round(f["score"], 1)) for f in ranking],
         "fitted": fitted, "truth": truth, "size_error": size_error(case, fitted, truth),
         "error_name": name, "error_before": err_before, "error_after": err_after,
         "centroid_before": before.get("centroid_error_mm"),
@@ -236,7 +288,7 @@ def _f(v: Any, fmt: str = "{:.3g}") -> str:
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| case (seed) | injected | named first | top of ranking (delta BIC) | fitted | "
+        "| case (seed) | injected | named first | top of ranking (score) | fitted | "
         "size err | headline gt error: before -> after | centroid mm | CD mm | stability | "
         "residual SSE |",
         "| --- | --- | :---: | --- | --- | ---: | --- | --- | --- | --- | --- |",

@@ -33,7 +33,8 @@ class Friction(Effect):
         "friction) than the simulation with the default friction predicts, while the "
         "static scene is consistent. Fit: per object, the friction coefficient that "
         "makes the simulated push match the observed displacements (1-D search in log "
-        "friction), kept when it explains more than its parameter costs."
+        "friction), kept when it explains more than its parameter costs; only for objects "
+        "that rest in the static rollout (else the push measures the reconstruction)."
     )
 
     def fit(self, residuals: Residuals) -> EffectFit:
@@ -48,8 +49,17 @@ class Friction(Effect):
         n_obs = sum(b.n for b in blocks_of(residuals).values())
         penalty = float(np.log(max(n_obs, 2)))
         base_sse = total_sse(blocks_of(residuals))
+        phys = residuals.physics
+        resting = [i for i in moved_objects(inter)
+                   if i not in phys.moving(phys.motion)
+                   and (i not in phys.objects or phys.objects[i].geometry_ok)]
+        if not resting:
+            return not_identifiable(
+                self.name, residuals,
+                "the pushed objects do not rest in the static rollout (or fit their points "
+                "badly): the simulated push would measure the reconstruction, not friction")
         trials = []
-        for obj_id in moved_objects(inter):
+        for obj_id in resting:
             mu = fit_one(residuals, obj_id)
             after = with_friction(residuals, {obj_id: mu})
             trials.append((base_sse - total_sse(blocks_of(after)), obj_id, mu, after))
