@@ -8,7 +8,8 @@ effect named first, the fitted size against the injected one, and the ground-tru
 before -> after. Friction is only identifiable from an interaction, so its scenes get an
 observed push (``input/interaction/push.json``) simulated on the ground truth. A COM offset
 is only visible when the rest pose needs it, so COM scenes are drawn (up to COM_TRIES synth
-seeds) until the shifted object, given back its uniform COM, moves in the ground truth.
+seeds) until the shifted object, given back its uniform COM, moves in the ground truth and
+is not ball-like (a ball's orientation is not seen: its COM only steadies it).
 
 Usage (regenerates the table in docs/diagnose.md between its bench markers):
   python scripts/bench_diagnose.py --seeds 1 --clean 2 --out docs/diagnose.md
@@ -36,6 +37,10 @@ from r2s.io.paths import ScenePaths  # noqa: E402
 from r2s.pipeline import build_options  # noqa: E402
 from r2s.stages.base import run_stage  # noqa: E402
 from r2s.stages.registry import available, get_stage  # noqa: E402
+
+ORACLE_CASES = ("com_offset", "friction")
+"""Cases also run with the true geometry (``--oracle``): physical effects need a
+reconstruction that rests where the truth rests."""
 
 CASES: dict[str, tuple[dict[str, str], Optional[str]]] = {
     "clean": ({}, None),
@@ -104,7 +109,7 @@ def com_offset_observable(scene: Path) -> bool:
     (uniform)? A round object on a point contact is left out: its orientation is not seen,
     so an offset COM only steadies it, and that shows as no particular pose."""
     from r2s.diagnose.data import PhysicsModel
-    from r2s.diagnose.measure.physics import rollout_motion, support_contacts
+    from r2s.diagnose.measure.physics import rollout_motion
     from r2s.io.scene_json import read_gt_scene
 
     gt = read_gt_scene(ScenePaths(scene).gt_scene)
@@ -113,23 +118,29 @@ def com_offset_observable(scene: Path) -> bool:
     if not uniform:
         return False
     _, spec = gt_world(scene, uniform)
-    up = -np.asarray(gt.gravity) / np.linalg.norm(gt.gravity)
-    contacts, _ = support_contacts(spec, up)
     motion = rollout_motion(spec, PhysicsModel(gravity=np.asarray(gt.gravity)), 1.0)
     for i in uniform:
-        flat = contacts[i] - (contacts[i] @ up)[:, None] * up
-        rolls_anywhere = len(flat) == 0 or np.ptp(flat, axis=0).max() < 0.005  # a ball
-        if not rolls_anywhere and (motion[i].translation_norm_m > 0.01
-                                   or np.degrees(motion[i].angle_rad) > 5.0):
+        if not is_round(spec.body(i).mesh) and (motion[i].translation_norm_m > 0.01
+                                                or np.degrees(motion[i].angle_rad) > 5.0):
             return True
     return False
+
+
+def is_round(mesh) -> bool:
+    """Ball-like (a fruit, a ball): extents within 15 % and most of the bounding sphere
+    filled; its orientation cannot be seen and it rolls on a point."""
+    ext = np.asarray(mesh.extents)
+    r = 0.5 * float(ext.mean())
+    filled = abs(float(mesh.volume)) / (4.0 / 3.0 * np.pi * r ** 3)
+    return bool(ext.min() > 0.85 * ext.max() and filled > 0.75)
 
 
 def write_observed_push(scene: Path) -> None:
     """Simulate a strike at one object of the ground truth and record what moved.
 
     The struck object is the one on the table whose push moves it most while moving the
-    others least (a push that topples a stack says little about friction).
+    others least (a push that topples a stack says little about friction), among objects
+    that slide rather than roll (a rolling ball says little about friction either).
     """
     from r2s.diagnose.data import PhysicsModel
     from r2s.diagnose.measure.interaction import plan_push, simulate_push
@@ -143,7 +154,7 @@ def write_observed_push(scene: Path) -> None:
     up = -np.asarray(gt.gravity) / np.linalg.norm(gt.gravity)
     best = None
     for body in spec.bodies:
-        if body.id in stacked or body.id not in visible:
+        if body.id in stacked or body.id not in visible or is_round(body.mesh):
             continue
         com = body.world_from_object[:3, :3] @ body.com_in_object + body.world_from_object[:3, 3]
         push = plan_push(com, body.radius_m, camera, up)
@@ -160,6 +171,48 @@ def write_observed_push(scene: Path) -> None:
     data = best[1].to_json(best[2])
     data["pushed_id"] = best[3]
     out.write_text(json.dumps(data, indent=1))
+
+
+def oracle_geometry(scene: Path) -> None:
+    """Replace the geomopt state by the true shapes and poses, with what a geometric
+    reconstruction cannot know left at its defaults (uniform density, default friction),
+    then export and evaluate again. Separates the diagnosis of physical effects from the
+    quality of the upstream geometry."""
+    import shutil
+
+    from pydantic import BaseModel
+
+    from r2s.io.scene_json import read_gt_scene
+    from r2s.io.state import ObjectState, SceneState, SupportPlane, write_state
+    from r2s.stages.base import StageOptions, StageSpec
+
+    paths = ScenePaths(scene)
+    gt = read_gt_scene(paths.gt_scene)
+    visible = {o.id for o in gt.objects if (o.model_extra or {}).get("in_input", True)}
+
+    def run(ctx) -> dict:
+        (ctx.out_dir / "meshes").mkdir(parents=True)
+        objects = []
+        for o in gt.objects:
+            if o.id not in visible:
+                continue
+            shutil.copy(paths.gt / o.mesh, ctx.out_dir / "meshes" / f"{o.id}.glb")
+            objects.append(ObjectState(id=o.id, label=o.label, mesh=f"meshes/{o.id}.glb",
+                                       world_from_object=o.world_from_object, source="prior"))
+        write_state(ctx.out_dir, SceneState(
+            stage="geomopt", gravity=list(gt.gravity),
+            support=SupportPlane(point=gt.support.point, normal=gt.support.normal,
+                                 friction=gt.support.friction), objects=objects))
+        return {"oracle": True}
+
+    class Oracle(StageOptions):
+        pass
+
+    spec = StageSpec("geomopt", Oracle, lambda p, o, m: [p.gt], run)
+    run_stage(spec, scene, Oracle(), force=True)
+    for name in ("export", "evaluate"):
+        stage = get_stage(name)
+        run_stage(stage, scene, build_options(stage, None, {}), force=True)
 
 
 def run_pipeline(scene: Path, stages: list[str]) -> None:
@@ -298,8 +351,9 @@ def table(rows: list[dict]) -> str:
         named = "yes" if r["named_first"] else f"no ({', '.join(r['decision']) or 'none'})"
         if r["ties"] and r["decision"]:
             named += f"; tie {'/'.join(r['ties'])}"
+        label = f"{r['case']} ({r['seed']}{', true geometry' if r.get('oracle') else ''})"
         lines.append(
-            f"| {r['case']} ({r['seed']}) | {r['injected'] or '-'} | {named} | {top} | "
+            f"| {label} | {r['injected'] or '-'} | {named} | {top} | "
             f"{_f(r['fitted'], '{:.4g}')} | "
             f"{_f(None if r['size_error'] is None else 100 * r['size_error'], '{:.0f}')}"
             f"{'' if r['size_error'] is None else ' %'} | "
@@ -337,27 +391,46 @@ def main() -> None:
     ap.add_argument("--count", type=int, default=5, help="objects per scene")
     ap.add_argument("--stages", default="init,graph,geomopt,export,evaluate",
                     help="pipeline stages run before diagnose")
+    ap.add_argument("--oracle", action="store_true",
+                    help="also run the COM and friction cases on the true geometry")
     ap.add_argument("--table-only", action="store_true", help="only rebuild the table")
     ap.add_argument("--out", type=Path, default=None, help="markdown file to update")
     args = ap.parse_args()
 
-    jobs = [("clean", s) for s in range(args.clean)]
-    jobs += [(c, s) for c in args.cases.split(",") if c for s in range(args.seeds)]
+    jobs = [("clean", s, False) for s in range(args.clean)]
+    jobs += [(c, s, False) for c in args.cases.split(",") if c for s in range(args.seeds)]
+    if args.oracle:
+        jobs += [(c, s, True) for c in args.cases.split(",") if c in ORACLE_CASES
+                 for s in range(args.seeds)]
     rows = []
-    for case, seed in jobs:
+    for case, seed, oracle in jobs:
         scene = args.root / f"{case}_s{seed}"
-        result = scene / "bench_diagnose.json"
+        result = scene / ("bench_diagnose_oracle.json" if oracle else "bench_diagnose.json")
         if not args.table_only:
             t0 = time.perf_counter()
             scene = make_scene(args.root, case, seed, args.count)
-            run_pipeline(scene, args.stages.split(","))
+            if oracle:
+                import shutil
+
+                twin = args.root / f"{case}_s{seed}_oracle"
+                if not twin.is_dir():
+                    shutil.copytree(scene, twin, ignore=shutil.ignore_patterns("diagnose"))
+                run_pipeline(twin, args.stages.split(","))
+                oracle_geometry(twin)
+                scene = twin
+                result = twin / "bench_diagnose.json"
+            else:
+                run_pipeline(scene, args.stages.split(","))
             diagnose = get_stage("diagnose")
             run_stage(diagnose, scene, build_options(diagnose, None, {}), force=True)
             r = row(scene, case, seed, time.perf_counter() - t0)
+            r["oracle"] = oracle
             result.write_text(json.dumps(r, indent=1))
             print(f"{scene.name}: {r['decision']} fitted {r['fitted']} "
                   f"({r['error_name']} {r['error_before']} -> {r['error_after']}) "
                   f"{r['seconds']:.0f} s", flush=True)
+        if args.table_only and oracle:
+            result = args.root / f"{case}_s{seed}_oracle" / "bench_diagnose.json"
         if result.is_file():
             rows.append(json.loads(result.read_text()))
     text = table(rows)
