@@ -2,22 +2,33 @@
 
 ``manifest.model`` holds ``{"effects": {name: params}}``. Stages call:
 
-- :func:`corrected_input` on the loaded ``input/`` (init): depth bias and camera rotation
-  corrected;
+- :func:`corrected_input` on the loaded ``input/`` (init; texture and evaluate for the
+  camera): depth bias and camera rotation corrected;
 - :func:`corrected_state` on a state before they use it (physopt, export): COM shifts,
   friction, a tilted table (and, for a state made before a camera correction was kept,
   the world rotation).
 
 Both are pure (no file I/O) and return new objects; an empty model changes nothing.
+A stage that calls one declares the level it applies in ``StageSpec.uses_model``; the
+stage machinery hashes :func:`model_part` of those levels among the stage's inputs, so a
+changed model makes exactly those stages (and what depends on their outputs) stale.
 """
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 from r2s.diagnose.effects import all_effects, get_effect
-from r2s.io.input_scene import InputScene
+from r2s.errors import R2SError
+from r2s.io.input_scene import Camera, InputScene
 from r2s.io.state import SceneState
+
+
+class UnknownEffectError(R2SError, KeyError):
+    """The model names an effect that is not in the catalogue (a one-line CLI error)."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
 
 
 def model_effects(model: Mapping[str, Any] | None) -> dict[str, dict]:
@@ -29,11 +40,15 @@ def model_effects(model: Mapping[str, Any] | None) -> dict[str, dict]:
 
 
 def _ordered(model: Mapping[str, Any] | None) -> list[tuple[str, dict]]:
-    known = all_effects()
     items = model_effects(model)
+    if not items:
+        return []
+    known = all_effects()
     unknown = sorted(set(items) - set(known))
     if unknown:
-        raise KeyError(f"model has unknown effects: {', '.join(unknown)}")
+        raise UnknownEffectError(f"manifest.json's model has effects this version of r2s "
+                                 f"does not know: {', '.join(unknown)} (known: "
+                                 f"{', '.join(known)})")
     return [(name, dict(items[name])) for name in known if name in items]
 
 
@@ -47,9 +62,24 @@ def corrected_input(input_scene: InputScene, model: Mapping[str, Any] | None) ->
     return out
 
 
+def corrected_camera(camera: Camera, model: Mapping[str, Any] | None) -> Camera:
+    """The declared camera with the model's input-level effects applied (its rotation)."""
+    out = camera
+    for name, params in _ordered(model):
+        effect = get_effect(name)
+        if effect.level == "input":
+            out = effect.apply_to_camera(out, params)
+    return out
+
+
 def corrected_state(state: SceneState, model: Mapping[str, Any] | None,
                     include_input_effects: bool = False) -> SceneState:
     """The state with the model's state-level effects applied (COM, friction, table).
+
+    State-level effects set values (a COM, a friction, the table normal), so applying them
+    to a state that already carries them changes nothing: physopt applies them to its
+    source and export again to whatever state it exports, and the exported scene carries
+    the model's values even where physopt moved them.
 
     ``include_input_effects`` also applies input-level effects that can act on a state
     (the camera rotation moves the whole state); use it only for a state that was built
@@ -63,6 +93,19 @@ def corrected_state(state: SceneState, model: Mapping[str, Any] | None,
     return out
 
 
+def model_part(model: Mapping[str, Any] | None, levels: Iterable[str]) -> dict[str, dict]:
+    """``{name: params}`` of the model's effects of ``levels`` ("input", "state"); an
+    effect this version does not know counts for every level (its stage then fails loudly
+    rather than silently ignoring it)."""
+    levels = set(levels)
+    items = model_effects(model)
+    if not items or not levels:
+        return {}
+    known = all_effects()
+    return {k: dict(v) for k, v in sorted(items.items())
+            if k not in known or known[k].level in levels}
+
+
 def with_effect(model: Mapping[str, Any] | None, name: str, params: dict) -> dict:
     """A new model dict with ``name`` added (composed with an earlier fit of the same effect)."""
     new = dict(model or {})
@@ -70,12 +113,4 @@ def with_effect(model: Mapping[str, Any] | None, name: str, params: dict) -> dic
     effect = get_effect(name)
     effects[name] = effect.compose(dict(effects[name]), params) if name in effects else params
     new["effects"] = effects
-    return new
-
-
-def without_levels(model: Mapping[str, Any] | None, level: str) -> dict:
-    """A new model dict without the effects of one level ("input" or "state")."""
-    new = dict(model or {})
-    new["effects"] = {k: v for k, v in model_effects(model).items()
-                      if get_effect(k).level != level}
     return new

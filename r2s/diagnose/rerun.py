@@ -1,37 +1,28 @@
 """Before/after: rerun the affected stages on a copy of the scene with the effects in the model.
 
 The scene is copied into a temporary folder (stage outputs, manifest, the convex-piece
-cache; no scratch folders, no earlier ``diagnose/``). In the copy:
-
-- input-level effects (depth bias, camera rotation) are baked into the copy's ``input/``
-  (composed with the input-level effects the model already holds, which are then dropped
-  from the copy's model so that nothing is applied twice);
-- state-level effects (COM, friction, table) are added to the copy's ``manifest.model``
-  and applied to every state file already there;
-
-and the pipeline stages that ran in the original are rerun from the first one an effect
-affects (init for input-level effects; physopt, else export, for state-level ones), with
-the options the original recorded. The original scene is never written.
+cache; no scratch folders, no earlier ``diagnose/``). The fitted effects are added to the
+copy's ``manifest.model`` (composed with what the model already holds) exactly as
+``--set apply=true`` adds them to the scene's, and the pipeline stages that ran in the
+original are rerun from the first one an effect affects (init for input-level effects;
+physopt, else export, for state-level ones), with the options the original recorded. The
+stages apply the model themselves (:mod:`r2s.diagnose.model`'s hooks), so the copy's
+``input/`` and state files are never patched and nothing is applied twice. The original
+scene is never written.
 """
 
 from __future__ import annotations
 
-import json
 import shutil
 import tempfile
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
-import numpy as np
-
 from r2s.console import ProgressFn, silent_progress
 from r2s.diagnose.effects import get_effect
 from r2s.diagnose.effects.base import EffectFit
-from r2s.diagnose.model import corrected_input, corrected_state, with_effect, without_levels
-from r2s.io.atomic import atomic_write_json
-from r2s.io.input_scene import load_input, read_json_file
-from r2s.io.paths import STATE_STAGES, ScenePaths
-from r2s.io.state import read_state, write_state
+from r2s.diagnose.model import with_effect
+from r2s.io.paths import ScenePaths
 from r2s.stages.base import run_stage
 from r2s.stages.manifest import load_manifest, save_manifest
 from r2s.stages.registry import PIPELINE, available, get_stage
@@ -55,38 +46,6 @@ def copy_scene(scene_dir: Path, dest_root: Path) -> Path:
     for p in dst.rglob("*"):  # a read-only source (a shared scene) gives a writable copy
         p.chmod(0o755 if p.is_dir() else 0o644)
     return dst
-
-
-def bake_input(scene_dir: Path, model: Mapping[str, Any]) -> None:
-    """Write ``input/`` of a (copied) scene as ``model``'s input-level effects correct it."""
-    paths = ScenePaths(Path(scene_dir))
-    inp = corrected_input(load_input(paths.root), model)
-    np.save(paths.depth_npy, np.where(np.isfinite(inp.depth_m), inp.depth_m, 0.0)
-            .astype(np.float32))
-    paths.depth_png.unlink(missing_ok=True)
-    camera = read_json_file(paths.camera)
-    camera["world_from_camera"] = np.asarray(inp.camera.world_from_camera).tolist()
-    atomic_write_json(paths.camera, camera)
-    if paths.objects.is_file():
-        data = read_json_file(paths.objects)
-        poses = {o.id: o.world_from_prior for o in inp.objects}
-        for entry in data.get("objects", []):
-            pose = poses.get(entry.get("id"))
-            if pose is not None and entry.get("world_from_prior") is not None:
-                entry["world_from_prior"] = np.asarray(pose).tolist()
-        paths.objects.write_text(json.dumps(data, indent=1))
-
-
-def patch_states(scene_dir: Path, model: Mapping[str, Any]) -> list[str]:
-    """Apply ``model``'s state-level effects to every state file of the scene."""
-    paths = ScenePaths(Path(scene_dir))
-    done = []
-    for stage in STATE_STAGES:
-        if paths.state(stage).is_file():
-            write_state(paths.stage_dir(stage), corrected_state(read_state(paths.stage_dir(stage)),
-                                                                model))
-            done.append(stage)
-    return done
 
 
 def stages_to_rerun(scene_dir: Path, fits: list[EffectFit],
@@ -115,15 +74,8 @@ def rerun_with_effects(scene_dir: Path, fits: list[EffectFit], work_root: Path,
     copy = copy_scene(scene_dir, work_root)
     paths = ScenePaths(copy)
     manifest = load_manifest(paths.manifest)
-    new_model: dict = dict(manifest.model)
-    for fit in fits:
-        new_model = with_effect(new_model, fit.effect, fit.params)
-    if any(get_effect(f.effect).level == "input" for f in fits):
-        bake_input(copy, new_model)
-        new_model = without_levels(new_model, "input")
-    manifest.model = new_model
+    manifest.model = model_with_fits(manifest.model, fits)
     save_manifest(paths.manifest, manifest)
-    patch_states(copy, new_model)
     order = stages_to_rerun(scene_dir, fits, stages)
     for k, name in enumerate(order):
         progress(f"rerunning {name} with the effect", k / max(len(order), 1))
@@ -131,9 +83,15 @@ def rerun_with_effects(scene_dir: Path, fits: list[EffectFit], work_root: Path,
         rec = load_manifest(paths.manifest).stages.get(name)
         options = _options(spec, rec.options if rec is not None else None)
         run_stage(spec, copy, options, force=True)
-        if name in STATE_STAGES:  # stages that do not call the hooks yet still get them
-            patch_states(copy, new_model)
     return copy, order
+
+
+def model_with_fits(model: Mapping[str, Any] | None, fits: list[EffectFit]) -> dict:
+    """``model`` with every fitted effect added (what ``--set apply=true`` records)."""
+    new: dict = dict(model or {})
+    for fit in fits:
+        new = with_effect(new, fit.effect, fit.params)
+    return new
 
 
 def _options(spec, recorded: Optional[dict]):

@@ -7,6 +7,10 @@ A stage module defines::
     def run(ctx: StageContext) -> dict          # writes into ctx.out_dir, returns a summary
     STAGE = StageSpec("name", Options, inputs, run)
 
+A stage that applies the scene's model (``manifest.model``, effects kept by ``r2s diagnose
+--set apply=true``; :mod:`r2s.diagnose.model`) names the levels it applies in
+``uses_model``; the part of the model of those levels is hashed with its inputs.
+
 :func:`run_stage` recovers a half-finished previous run, skips the stage when nothing it
 reads or is configured with has changed, otherwise runs it into a scratch folder and swaps
 that folder into place, then records the run in the manifest.
@@ -14,6 +18,8 @@ that folder into place, then records the run in the manifest.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -59,6 +65,11 @@ class StageSpec:
     run: Callable[[StageContext], dict]
     output_name: Optional[str] = None
     """Folder the stage writes; defaults to ``name``."""
+    uses_model: frozenset[str] = frozenset()
+    """Levels of the scene's model the stage applies ("input": it corrects the observation
+    with :func:`r2s.diagnose.model.corrected_input`; "state": it corrects a state with
+    :func:`r2s.diagnose.model.corrected_state`). Their part of ``manifest.model`` counts
+    among the stage's inputs."""
 
     @property
     def output(self) -> str:
@@ -83,7 +94,24 @@ def _input_hashes(spec: StageSpec, paths: ScenePaths, options: Any, manifest: Ma
         except ValueError:
             key = str(p.resolve())
         hashes[key] = hash_path(p)
+    hashes.update(model_hashes(spec, manifest))
     return hashes
+
+
+def model_hashes(spec: StageSpec, manifest: Manifest) -> dict[str, str]:
+    """``{"manifest.model[<levels>]": sha256}`` of the part of the scene's model the stage
+    applies; empty when that part is empty (so a scene without a model keeps the hashes it
+    had before models existed, and an unchanged model changes nothing)."""
+    if not spec.uses_model or not manifest.model:
+        return {}
+    from r2s.diagnose.model import model_part  # the effect catalogue, only when needed
+
+    part = model_part(manifest.model, spec.uses_model)
+    if not part:
+        return {}
+    text = json.dumps(part, sort_keys=True, separators=(",", ":"))
+    return {f"manifest.model[{','.join(sorted(spec.uses_model))}]":
+            hashlib.sha256(text.encode()).hexdigest()}
 
 
 def staleness(spec: StageSpec, paths: ScenePaths, options: StageOptions,
@@ -97,7 +125,12 @@ def staleness(spec: StageSpec, paths: ScenePaths, options: StageOptions,
         return "output missing"
     if record.options != options.model_dump(mode="json"):
         return "options changed"
-    if record.input_hashes != _input_hashes(spec, paths, options, manifest):
+    current = _input_hashes(spec, paths, options, manifest)
+    if record.input_hashes != current:
+        changed = {k for k in set(current) | set(record.input_hashes)
+                   if current.get(k) != record.input_hashes.get(k)}
+        if all(k.startswith("manifest.model") for k in changed):
+            return "model changed"
         return "inputs changed"
     if record.output_hash != hash_path(out):
         return "output modified"

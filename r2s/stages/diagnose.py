@@ -8,8 +8,10 @@
    the effect in the model, and measure the residual and (with ``gt/``) the ground-truth
    errors again: :mod:`r2s.diagnose.rerun`.
 4. Write ``diagnose/report.json``, ``report.md`` and ``residuals.png``. With
-   ``apply=true`` the effect is kept in ``manifest.model["effects"]`` (later stages and
-   ``r2s run`` use it); without it nothing outside ``diagnose/`` changes.
+   ``apply=true`` the effect is kept in ``manifest.model["effects"]``: the stages that
+   apply the model (init, texture, evaluate: input level; physopt, export: state level)
+   then count as stale and ``r2s run`` reruns them with it; without it nothing outside
+   ``diagnose/`` changes.
 """
 
 from __future__ import annotations
@@ -20,17 +22,17 @@ from typing import Literal
 from pydantic import Field, field_validator
 
 from r2s.diagnose.effects import all_effects
-from r2s.diagnose.model import with_effect
 from r2s.diagnose.plots import residual_figure
 from r2s.diagnose.ranking import diagnose
 from r2s.diagnose.report import build_report, markdown
-from r2s.diagnose.rerun import rerun_with_effects, temporary_root
+from r2s.diagnose.rerun import model_with_fits, rerun_with_effects, temporary_root
 from r2s.diagnose.scene import MeasureSettings, measure_scene, scene_gt_errors
 from r2s.errors import R2SError
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
 from r2s.io.paths import ScenePaths
-from r2s.stages.base import StageContext, StageOptions, StageSpec
+from r2s.stages.base import StageContext, StageOptions, StageSpec, model_hashes
 from r2s.stages.manifest import Manifest, load_manifest, save_manifest
+from r2s.stages.registry import PIPELINE, get_stage
 
 
 class Options(StageOptions):
@@ -86,6 +88,25 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
             paths.stage_dir("physopt"), paths.export, paths.metrics, paths.gt]
 
 
+def model_not_in_effect(paths: ScenePaths, manifest: Manifest) -> list[str]:
+    """Notes for stages whose result predates the scene's current model (an effect kept by
+    ``apply=true`` without ``r2s run`` since): the residuals then mix two models."""
+    stale = []
+    for name in PIPELINE:
+        rec = manifest.stages.get(name)
+        if rec is None or rec.status != "done":
+            continue
+        spec = get_stage(name)
+        now = model_hashes(spec, manifest)
+        then = {k: v for k, v in rec.input_hashes.items() if k.startswith("manifest.model")}
+        if now != then:
+            stale.append(name)
+    if not stale:
+        return []
+    return [f"the scene's model changed after {', '.join(stale)} ran; run 'r2s run "
+            f"{paths.root}' first so that the residuals are measured with it"]
+
+
 def settings_of(options: Options) -> MeasureSettings:
     return MeasureSettings(
         scale_sigma=options.scale_sigma, support_sigma_deg=options.support_sigma_deg,
@@ -116,7 +137,7 @@ def run(ctx: StageContext) -> dict:
     diag = diagnose(before.residuals, effects, options.max_effects, options.min_evidence,
                     options.tie_tolerance, lambda m, f: progress(m, 0.3 + 0.2 * f),
                     penalties={"camera_rotation": options.camera_rotation_penalty})
-    notes = list(before.residuals.notes)
+    notes = list(before.residuals.notes) + model_not_in_effect(paths, ctx.manifest)
     gt_before = scene_gt_errors(paths.root)
     gt_after = measured_after = None
     stages: list[str] = []
@@ -137,10 +158,7 @@ def run(ctx: StageContext) -> dict:
             if not options.keep_copy:
                 work.cleanup()
 
-    new_model = model
-    if options.apply and diag.chosen:
-        for fit in diag.chosen:
-            new_model = with_effect(new_model, fit.effect, fit.params)
+    new_model = model_with_fits(model, list(diag.chosen)) if options.apply else model
     report = build_report(paths.root.name, diag, before.physics_stage, measured_after, stages,
                           gt_before, gt_after, bool(options.apply and diag.chosen), new_model,
                           notes)
@@ -169,4 +187,4 @@ def run(ctx: StageContext) -> dict:
     return summary
 
 
-STAGE = StageSpec("diagnose", Options, inputs, run)
+STAGE = StageSpec("diagnose", Options, inputs, run, uses_model=frozenset({"input", "state"}))

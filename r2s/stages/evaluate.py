@@ -1,7 +1,8 @@
 """Stage ``evaluate``: judge ``export/`` in PyBullet (and against ``gt/`` where it exists).
 
 Reads only what an outside tool would: ``export/`` (SCENE_FORMAT.md), ``gt/`` and
-``input/camera.json`` (for the picture). Writes ``evaluate/metrics.json`` and
+``input/camera.json`` (for the picture; a camera rotation kept in the scene's model by
+``r2s diagnose --set apply=true`` corrects it, as it did init's). Writes ``evaluate/metrics.json`` and
 ``evaluate/rollout.png`` (first and last frame of the rollout seen by the input camera).
 
 Scene-level keys of metrics.json: ``stability_ratio``, ``settling_time_s``,
@@ -26,6 +27,7 @@ from PIL import Image
 from pydantic import Field
 
 from r2s.console import ProgressFn
+from r2s.diagnose.model import corrected_camera
 from r2s.errors import StageError
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json
 from r2s.io.input_scene import load_camera, load_masks, load_rgb
@@ -84,12 +86,13 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
     return [paths.export, paths.gt, paths.camera, paths.rgb, paths.masks]
 
 
-def _rendering(paths: ScenePaths, export_objects: list) -> tuple[dict, Optional[tuple]]:
+def _rendering(paths: ScenePaths, export_objects: list, model: dict
+               ) -> tuple[dict, Optional[tuple]]:
     """Rendering metrics of export/ at the input view, and (observed, rendered, object mask)."""
     if not (paths.camera.is_file() and paths.rgb.is_file() and paths.masks.is_file()):
         return ({"psnr": None, "ssim": None, "lpips": None,
                  "lpips_reason": "no input view (input/rgb.png, masks.png, camera.json)"}, None)
-    cam, _ = load_camera(paths.camera)
+    cam = corrected_camera(load_camera(paths.camera)[0], model)
     observed = load_rgb(paths.rgb, cam.width, cam.height)
     object_mask = load_masks(paths.masks, cam.width, cam.height) > 0
     meshes = [load_mesh(paths.export / o.visual_mesh).apply_transform(np.asarray(o.world_from_object))
@@ -138,10 +141,11 @@ def _geometry_of(paths: ScenePaths, obj: ExportObject, gt: GtScene, options: Opt
     }
 
 
-def _camera(paths: ScenePaths, loaded: LoadedScene) -> tuple[np.ndarray, np.ndarray, int, int]:
+def _camera(paths: ScenePaths, loaded: LoadedScene, model: dict
+            ) -> tuple[np.ndarray, np.ndarray, int, int]:
     """(K, world_from_camera, width, height): the input camera, else a view of the objects."""
     if paths.camera.is_file():
-        cam, _ = load_camera(paths.camera)
+        cam = corrected_camera(load_camera(paths.camera)[0], model)
         return cam.K, cam.world_from_camera, cam.width, cam.height
     poses = loaded.initial_world_from_object()
     target = poses[:, :3, 3].mean(axis=0) if len(poses) else np.zeros(3)
@@ -183,7 +187,8 @@ class _Simulated:
     frames: Optional[tuple[np.ndarray, np.ndarray]]
 
 
-def _simulate(paths: ScenePaths, options: Options, progress: ProgressFn) -> _Simulated:
+def _simulate(paths: ScenePaths, options: Options, progress: ProgressFn, model: dict
+              ) -> _Simulated:
     """Load export/ into a fresh DIRECT client: penetration, first frame, rollout, last frame."""
     client = connect_direct()
     try:
@@ -191,7 +196,7 @@ def _simulate(paths: ScenePaths, options: Options, progress: ProgressFn) -> _Sim
         pen = penetration_metrics(scene_distances(client, loaded), options.floating_gap_mm)
         first = None
         if options.render:
-            camera = _camera(paths, loaded)
+            camera = _camera(paths, loaded, model)
             colour_bodies(client, loaded.body_ids, loaded.support_body)
             first = _frame(client, camera, options.render_width_px)
         progress("rollout", 0.1)
@@ -217,7 +222,7 @@ def run(ctx: StageContext) -> dict:
         raise StageError(f"{paths.export_scene} is missing; run 'r2s export' first")
 
     progress("loading export/", 0.0)
-    sim = _simulate(paths, options, progress)
+    sim = _simulate(paths, options, progress, ctx.manifest.model)
     pen, export_objects = sim.pen, sim.loaded.scene.objects
     if options.engine == "mujoco":
         from r2s.sim.mujoco_rollout import mujoco_rollout
@@ -246,7 +251,7 @@ def run(ctx: StageContext) -> dict:
     for key in GEOMETRY_KEYS:
         scene[key] = _mean_or_none([o[key] for o in objects])
     progress("rendering metrics", 0.96)
-    rendering, view = _rendering(paths, export_objects)
+    rendering, view = _rendering(paths, export_objects, ctx.manifest.model)
     scene.update({k: rendering[k] for k in ("psnr", "ssim", "lpips")})
     scene = {key: _finite_or_none(scene[key]) for key in SCENE_KEYS}
 
@@ -281,4 +286,4 @@ def run(ctx: StageContext) -> dict:
     return scene
 
 
-STAGE = StageSpec("evaluate", Options, inputs, run)
+STAGE = StageSpec("evaluate", Options, inputs, run, uses_model=frozenset({"input"}))

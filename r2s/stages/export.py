@@ -4,6 +4,9 @@ It reads the latest state stage that has run (``source=auto``: texture > physopt
 > init), or a named one, or the ground truth (``source=gt``, for checking the judge against
 the generator). Mass is volume x density where no stage estimated it; COM is the shape's
 centre of mass where none was estimated; collision geometry is a convex decomposition.
+A state is exported as the scene's model corrects it (COM shifts, friction, a tilted table
+kept by ``r2s diagnose --set apply=true``: :func:`r2s.diagnose.model.corrected_state`);
+the ground truth is exported as it is.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
+from r2s.diagnose.model import corrected_state
 from r2s.errors import StageError
 from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.mass_properties import mass_properties
@@ -65,8 +69,9 @@ def _bodies_from_gt(paths: ScenePaths) -> tuple[list, dict, list[dict]]:
     return gt.gravity, gt.support.model_dump(), items
 
 
-def _bodies_from_state(paths: ScenePaths, stage: str) -> tuple[list, dict, list[dict]]:
-    state = read_state(paths.stage_dir(stage))
+def _bodies_from_state(paths: ScenePaths, stage: str, model: dict
+                       ) -> tuple[list, dict, list[dict]]:
+    state = corrected_state(read_state(paths.stage_dir(stage)), model)
     items = []
     known = set(type(state.objects[0]).model_fields) if state.objects else set()
     for obj in state.objects:
@@ -90,7 +95,7 @@ def run(ctx: StageContext) -> dict:
     if source == "gt":
         gravity, support, items = _bodies_from_gt(paths)
     else:
-        gravity, support, items = _bodies_from_state(paths, source)
+        gravity, support, items = _bodies_from_state(paths, source, ctx.manifest.model)
     cache = paths.root / ".cache" / "convex"
     bodies = []
     for k, item in enumerate(items):
@@ -120,4 +125,4 @@ def run(ctx: StageContext) -> dict:
             "collision_pieces": int(sum(len(b.collision_pieces) for b in bodies))}
 
 
-STAGE = StageSpec("export", Options, inputs, run)
+STAGE = StageSpec("export", Options, inputs, run, uses_model=frozenset({"state"}))

@@ -41,6 +41,7 @@ from r2s.geometry.overlay import fit_overlay, render_instances
 from r2s.geometry.plane import PlaneFit, fit_plane_ransac, signed_distance
 from r2s.geometry.registration import (IcpOptions, RegistrationResult, register_prior,
                                        surface_fit, voxel_downsample)
+from r2s.diagnose.model import corrected_input
 from r2s.io.atomic import atomic_write_bytes
 from r2s.io.input_scene import InputScene, ObjectSpec, load_input
 from r2s.io.mesh_io import load_mesh, save_mesh
@@ -211,7 +212,9 @@ def _png_bytes(image: np.ndarray) -> bytes:
 
 def run(ctx: StageContext) -> dict:
     o: Options = ctx.options
-    scene = load_input(ctx.paths.root)
+    # the observation as the scene's model corrects it (depth bias, camera rotation kept by
+    # 'r2s diagnose --set apply=true'); input/ itself is never changed
+    scene = corrected_input(load_input(ctx.paths.root), ctx.manifest.model)
     cam = scene.camera
     ctx.progress("support plane", 0.0)
     plane, plane_points = _fit_support(scene, o)
@@ -282,4 +285,4 @@ def run(ctx: StageContext) -> dict:
     }
 
 
-STAGE = StageSpec("init", Options, inputs, run)
+STAGE = StageSpec("init", Options, inputs, run, uses_model=frozenset({"input"}))

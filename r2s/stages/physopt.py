@@ -19,6 +19,7 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import Field
 
+from r2s.diagnose.model import corrected_state
 from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.mass_properties import mass_properties
 from r2s.io.atomic import atomic_write_json
@@ -252,7 +253,8 @@ def _verify_and_repair(params: dict, pieces: dict, state: SceneState, order: lis
 def run(ctx: StageContext) -> dict:
     paths, opt = ctx.paths, ctx.options
     src = _source(paths, opt, ctx.manifest)
-    state = read_state(paths.stage_dir(src))
+    # with the effects kept in the scene's model (COM, friction, table: r2s.diagnose.model)
+    state = corrected_state(read_state(paths.stage_dir(src)), ctx.manifest.model)
     meshes = {o.id: welded(load_mesh(paths.stage_dir(src) / o.mesh)) for o in state.objects}
     cache = paths.root / ".cache" / "convex"
     pieces = {}
@@ -307,4 +309,4 @@ def run(ctx: StageContext) -> dict:
             "rounds": len(log["rounds"]) - 1}
 
 
-STAGE = StageSpec("physopt", Options, inputs, run)
+STAGE = StageSpec("physopt", Options, inputs, run, uses_model=frozenset({"state"}))

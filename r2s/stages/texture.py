@@ -29,6 +29,7 @@ import numpy as np
 from PIL import Image
 from pydantic import Field
 
+from r2s.diagnose.model import corrected_input
 from r2s.errors import StageError
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json
 from r2s.io.input_scene import load_input
@@ -86,7 +87,8 @@ def run(ctx: StageContext) -> dict:
     source = _source(paths, opt, ctx.manifest)
     src_dir = paths.stage_dir(source)
     state = read_state(src_dir)
-    scene = load_input(paths.root)
+    # the camera as the scene's model corrects it (the states live in init's world frame)
+    scene = corrected_input(load_input(paths.root), ctx.manifest.model)
     cam = scene.camera
 
     sources, meshes = [], []
@@ -176,4 +178,4 @@ def run(ctx: StageContext) -> dict:
     return summary
 
 
-STAGE = StageSpec("texture", Options, inputs, run)
+STAGE = StageSpec("texture", Options, inputs, run, uses_model=frozenset({"input"}))

@@ -24,7 +24,7 @@ import numpy as np
 
 from r2s.diagnose.blocks import blocks_of, total_n, total_sse
 from r2s.diagnose.data import Residuals
-from r2s.io.input_scene import InputScene
+from r2s.io.input_scene import Camera, InputScene
 from r2s.io.state import SceneState
 
 
@@ -133,6 +133,11 @@ class Effect:
     def apply_to_input(self, scene: InputScene, params: dict) -> InputScene:
         """The observation as this effect says it really is (default: unchanged)."""
         return scene
+
+    def apply_to_camera(self, camera: Camera, params: dict) -> Camera:
+        """The camera as this effect says it really is (default: unchanged); the part of
+        ``apply_to_input`` that stages reading only ``camera.json`` need (evaluate)."""
+        return camera
 
     def apply_to_state(self, state: SceneState, params: dict) -> SceneState:
         """The reconstructed state with this effect in it (default: unchanged)."""

@@ -51,11 +51,14 @@ class CameraRotation(Effect):
         return make_fit(self.name, residuals, after, params, self.n_params, angle, "deg",
                         note=self.describe(params))
 
+    def apply_to_camera(self, camera: Camera, params: dict) -> Camera:
+        corr = np.asarray(params["world_correction"], dtype=np.float64)
+        return Camera(K=camera.K, world_from_camera=corr @ camera.world_from_camera,
+                      width=camera.width, height=camera.height)
+
     def apply_to_input(self, scene: InputScene, params: dict) -> InputScene:
         corr = np.asarray(params["world_correction"], dtype=np.float64)
-        cam = scene.camera
-        camera = Camera(K=cam.K, world_from_camera=corr @ cam.world_from_camera,
-                        width=cam.width, height=cam.height)
+        camera = self.apply_to_camera(scene.camera, params)
         objects = [o if o.world_from_prior is None else
                    ObjectSpec(id=o.id, label=o.label, prior_mesh=o.prior_mesh,
                               world_from_prior=corr @ o.world_from_prior)
