@@ -123,12 +123,15 @@ def synth(
                                                "(repeatable); recorded only in gt/."),
     width: int = typer.Option(640, help="Image width in pixels."),
     height: int = typer.Option(480, help="Image height in pixels."),
+    push: bool = typer.Option(False, "--push", help="Also push one object on the ground truth "
+                                                    "and write what the camera saw after it "
+                                                    "(input/interaction/)."),
 ) -> None:
     """Make a benchmark scene: settled clutter, rendered RGB-D and masks, priors, gt/."""
     from r2s.synth.generate import SynthOptions, synthesize
 
     opts = SynthOptions(objects=objects, count=count, seed=seed, noise=noise,
-                        effects=_parse_sets(effect), width=width, height=height)
+                        effects=_parse_sets(effect), width=width, height=height, push=push)
     from r2s.console import stage_progress
 
     with stage_progress("synth") as progress:
@@ -139,15 +142,32 @@ def synth(
 @app.command()
 def predict(
     scene_dir: Path = typer.Argument(..., help="Scene directory with export/."),
-    action: Path = typer.Option(..., "--action", help="Push action JSON (see docs/interaction.md)."),
+    action: Optional[Path] = typer.Option(
+        None, "--action", help="Push action JSON (see docs/interaction.md); default: the "
+                               "observed push input/interaction/push.json."),
 ) -> None:
-    """Replay a pusher trajectory on export/ in PyBullet; writes predict/."""
+    """Replay a pusher trajectory on export/ in PyBullet; writes predict/ (with the error
+    against the observed outcome when the push is input/interaction/'s)."""
     from r2s.console import print_table
     from r2s.interaction.predict import predict as run_predict
 
     summary = run_predict(scene_dir, action)
-    print_table("predicted displacement", ["object", "moved [mm]"],
-                [[str(o["id"]), f"{o['displacement_m'] * 1000:.1f}"] for o in summary["objects"]])
+    err = summary.get("error", {})
+    ucd = {o["id"]: o["ucd_mm"] for o in err.get("objects", [])}
+    pose = {o["id"]: o for o in err.get("pose", [])}
+
+    def cell(value: Optional[float]) -> str:
+        return "-" if value is None else f"{value:.1f}"
+
+    rows = [[str(o["id"]) + (" (pushed)" if o["id"] == err.get("pushed_id") else ""),
+             f"{o['displacement_m'] * 1000:.1f}", cell(ucd.get(o["id"])),
+             cell(pose.get(o["id"], {}).get("translation_mm")),
+             cell(pose.get(o["id"], {}).get("rotation_deg"))] for o in summary["objects"]]
+    title = "predicted push"
+    if err.get("ucd_mm") is not None:
+        title += f": UCD {err['ucd_mm']:.1f} mm"
+    print_table(title, ["object", "moved [mm]", "UCD [mm]", "pose err [mm]", "pose err [deg]"],
+                rows)
 
 
 @app.command()

@@ -9,7 +9,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal, Optional
+from typing import Annotated, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -18,22 +18,23 @@ from r2s.io.input_scene import read_json_file
 
 
 class EndEffector(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     type: Literal["sphere", "box"] = "sphere"
     radius_m: float = Field(0.015, gt=0)
-    half_extents_m: Optional[list[float]] = None
+    half_extents_m: Optional[list[Annotated[float, Field(gt=0)]]] = Field(
+        None, min_length=3, max_length=3)
 
 
 class Waypoint(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     position: list[float] = Field(min_length=3, max_length=3)
     speed_mps: float = Field(0.05, gt=0)
 
 
 class PushAction(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     end_effector: EndEffector = EndEffector()
     start: list[float] = Field(min_length=3, max_length=3)

@@ -11,7 +11,6 @@ is, and the share of removals that leave the truth at rest is reported. Output:
 
 from __future__ import annotations
 
-import shutil
 import tempfile
 from pathlib import Path
 from typing import Optional
@@ -20,6 +19,7 @@ import numpy as np
 import pybullet as pb
 
 from r2s.errors import StageError
+from r2s.interaction.ground_truth import export_ground_truth
 from r2s.io.atomic import atomic_write_json, commit_dir, recover_dir, scratch_dir
 from r2s.io.paths import ScenePaths
 from r2s.physopt.hierarchy import parents_from_graph
@@ -112,18 +112,6 @@ def replay_order(export_dir: Path, order: list[int]) -> list[dict]:
     return steps
 
 
-def _gt_export(paths: ScenePaths, work: Path) -> Path:
-    from r2s.stages.base import run_stage
-    from r2s.stages.export import STAGE as EXPORT, Options as ExportOptions
-
-    scene = work / "gt_scene"
-    shutil.copytree(paths.gt, scene / "gt")
-    if (paths.root / ".cache").is_dir():
-        shutil.copytree(paths.root / ".cache", scene / ".cache")
-    run_stage(EXPORT, scene, ExportOptions(source="gt"))
-    return scene / "export"
-
-
 def declutter(scene_dir: Path) -> dict:
     paths = ScenePaths(Path(scene_dir))
     if not paths.export_scene.is_file():
@@ -134,7 +122,7 @@ def declutter(scene_dir: Path) -> dict:
                     "success_rate": float(np.mean([s["at_rest"] for s in plan]))}
     if paths.gt_scene.is_file():
         with tempfile.TemporaryDirectory(prefix="r2s-declutter-") as work:
-            gt_steps = replay_order(_gt_export(paths, Path(work)), report["order"])
+            gt_steps = replay_order(export_ground_truth(paths.root, Path(work)), report["order"])
         report["ground_truth"] = {"steps": gt_steps,
                                   "success_rate": float(np.mean([s["at_rest"] for s in gt_steps]))}
     out = paths.stage_dir("declutter")

@@ -44,14 +44,25 @@ def path_targets(action: PushAction, time_step_s: float = TIME_STEP_S) -> np.nda
     return np.concatenate(points)
 
 
-def replay_push(client: int, loaded: LoadedScene, action: PushAction) -> dict[int, np.ndarray]:
-    """Run the push, then ``settle_s`` more; returns final world_from_object per object id."""
+def run_push(client: int, action: PushAction, body_ids: dict[int, int],
+             com_in_object: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
+    """Run the push on the bodies of ``client``, then ``settle_s`` more.
+
+    ``body_ids``: object id -> PyBullet body id; ``com_in_object``: object id -> (3,) COM in
+    the object frame. Returns object id -> (4, 4) final ``world_from_object``.
+    """
     pusher, cid = _add_pusher(client, action)
     for target in path_targets(action):
         pb.changeConstraint(cid, list(target), maxForce=PUSHER_MAX_FORCE_N, physicsClientId=client)
         pb.stepSimulation(physicsClientId=client)
+    pb.removeConstraint(cid, physicsClientId=client)
     pb.removeBody(pusher, physicsClientId=client)
     for _ in range(int(round(action.settle_s / TIME_STEP_S))):
         pb.stepSimulation(physicsClientId=client)
-    return {i: body_world_from_object(client, b, loaded.com_in_object[i])
-            for i, b in loaded.body_ids.items()}
+    return {i: body_world_from_object(client, b, com_in_object[i]) for i, b in body_ids.items()}
+
+
+def replay_push(client: int, loaded: LoadedScene, action: PushAction) -> dict[int, np.ndarray]:
+    """Run the push on a loaded export scene, then ``settle_s`` more; returns the final
+    (4, 4) ``world_from_object`` per object id."""
+    return run_push(client, action, loaded.body_ids, loaded.com_in_object)

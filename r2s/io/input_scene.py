@@ -243,8 +243,14 @@ def _check_size(path: Path, arr: np.ndarray, width: int, height: int) -> None:
 
 def load_depth(paths: ScenePaths, width: int, height: int, depth_unit_m: float) -> np.ndarray:
     """Depth in metres, float32 (H, W), NaN where invalid."""
-    if paths.depth_npy.is_file():
-        path = paths.depth_npy
+    return load_depth_file(paths.depth_png, paths.depth_npy, width, height, depth_unit_m)
+
+
+def load_depth_file(png: Path, npy: Path, width: int, height: int,
+                    depth_unit_m: float) -> np.ndarray:
+    """(H, W) float32 metres, NaN where invalid, from ``npy`` if it exists, else ``png``."""
+    if npy.is_file():
+        path = npy
         try:
             arr = np.load(path, allow_pickle=False)
         except Exception:
@@ -254,15 +260,15 @@ def load_depth(paths: ScenePaths, width: int, height: int, depth_unit_m: float) 
         if arr.dtype.kind not in "fiu":
             raise InputError(path, f"expected float32 metres, got dtype {arr.dtype}")
         depth = arr.astype(np.float32)
-    elif paths.depth_png.is_file():
-        path = paths.depth_png
+    elif png.is_file():
+        path = png
         img = _read_image(path)
         arr = np.asarray(img)
         if arr.ndim != 2 or arr.dtype not in (np.uint16, np.int32, np.uint8):
             raise InputError(path, f"expected a 16-bit single-channel PNG, got mode {img.mode}")
         depth = arr.astype(np.float32) * np.float32(depth_unit_m)
     else:
-        raise InputError(paths.depth_png, "missing file (neither depth.png nor depth.npy exists)")
+        raise InputError(png, f"missing file (neither {png.name} nor {npy.name} exists)")
     _check_size(path, depth, width, height)
     depth[~np.isfinite(depth) | (depth <= 0)] = np.nan
     if np.isnan(depth).all():

@@ -71,7 +71,30 @@ class ScenePaths:
 
     @property
     def interaction(self) -> Path:
+        """``input/interaction/``: an observed push (layout in docs/interaction.md)."""
         return self.input / "interaction"
+
+    @property
+    def push_action(self) -> Path:
+        """The push that was made, in ``r2s predict``'s action format."""
+        return self.interaction / "push.json"
+
+    @property
+    def depth_after_png(self) -> Path:
+        return self.interaction / "depth_after.png"
+
+    @property
+    def depth_after_npy(self) -> Path:
+        return self.interaction / "depth_after.npy"
+
+    @property
+    def masks_after(self) -> Path:
+        return self.interaction / "masks_after.png"
+
+    @property
+    def observed_push(self) -> Path:
+        """Per-object displacement seen between the images before and after the push."""
+        return self.interaction / "observed.json"
 
     @property
     def gt(self) -> Path:
@@ -80,6 +103,11 @@ class ScenePaths:
     @property
     def gt_scene(self) -> Path:
         return self.gt / "scene.json"
+
+    @property
+    def gt_push(self) -> Path:
+        """``gt/push.json``: true final poses after the push of ``input/interaction/``."""
+        return self.gt / "push.json"
 
     @property
     def export(self) -> Path:

@@ -11,6 +11,7 @@ Layout written (SCENE_FORMAT.md)::
 
     OUT/input/{rgb.png, depth.png, masks.png, camera.json, objects.json, priors/<id>.glb}
     OUT/gt/{scene.json, meshes/<id>.glb}
+    OUT/input/interaction/, OUT/gt/push.json   with ``push`` (:mod:`~r2s.synth.push`)
     OUT/.cache/convex/<key>.npz    the export stage's memo of the gt collision pieces
 """
 
@@ -39,6 +40,7 @@ from r2s.synth.effects import Effects, parse_effects
 from r2s.synth.files import depth_png, write_png, write_textured_obj
 from r2s.synth.options import SynthOptions
 from r2s.synth.placement import Placed
+from r2s.synth.push import add_observed_push
 from r2s.synth.render import Frame, Lighting, Visual, render
 
 __all__ = ["SynthOptions", "synthesize"]
@@ -192,7 +194,7 @@ def synthesize(out_dir: Path, options: SynthOptions,
     -------
     summary dict: ``objects`` (in gt/), ``visible`` (in input/), ``priors``, ``stacked``
     (objects resting only on other objects), ``contacts`` (touching object pairs),
-    ``seconds``.
+    ``pushed_id`` (with ``push``), ``seconds``.
     """
     t0 = time.perf_counter()
     out_dir = Path(out_dir)
@@ -308,6 +310,10 @@ def synthesize(out_dir: Path, options: SynthOptions,
                                  "translation_m": options.verify_translation_m,
                                  "rotation_deg": options.verify_rotation_deg}},
         }))
+        pushed: dict = {}
+        if options.push:
+            progress("pushing", 0.9)
+            pushed = add_observed_push(scratch)
         commit_dir(scratch, out_dir)
         scratch = None
     finally:
@@ -317,4 +323,5 @@ def synthesize(out_dir: Path, options: SynthOptions,
     progress("done", 1.0)
     return {"objects": n, "visible": int(obs.in_input.sum()), "priors": len(with_prior),
             "stacked": len(contacts["stacked"]), "contacts": len(contacts["pairs"]),
+            **({"pushed_id": pushed["pushed_id"]} if pushed else {}),
             "seconds": round(time.perf_counter() - t0, 2)}

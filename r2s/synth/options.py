@@ -46,6 +46,9 @@ class SynthOptions(BaseModel):
     verify_rotation_deg: float = Field(2.0, description="Rest check: max rotation, deg.")
     cache_dir: Optional[str] = Field(None, description="Memo of convex decompositions "
                                                        "(default ~/.cache/r2s/convex).")
+    push: bool = Field(False, description="Also push one object on the ground truth and "
+                                          "write what the camera saw after it "
+                                          "(input/interaction/, gt/push.json).")
 
     def __init__(self, **data: object) -> None:
         try:
