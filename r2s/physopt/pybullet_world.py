@@ -114,6 +114,22 @@ def settle(world: World, start: dict[int, np.ndarray], duration_s: float,
     return world.poses()
 
 
+def settle_damped(world: World, start: dict[int, np.ndarray], duration_s: float,
+                  damping: float = 0.9, time_step_s: float = 1.0 / 240.0) -> dict[int, np.ndarray]:
+    """Full dynamics with strong linear and angular damping (Bullet's per-second velocity
+    loss factor, 0-1): bodies roll, rock and topple as they would, but the energy drains
+    away and the scene comes to a true dynamic rest. The last resort for bodies that
+    quasi-static settling cannot hold (a ball rocking on an eccentric COM, a wedge that
+    slips late). Returns the rest poses."""
+    world.set_poses(start)
+    for b in world.body_ids.values():
+        pb.changeDynamics(b, -1, linearDamping=damping, angularDamping=damping,
+                          physicsClientId=world.client)
+    for _ in range(int(round(duration_s / time_step_s))):
+        pb.stepSimulation(physicsClientId=world.client)
+    return world.poses()
+
+
 def penetrations(world: World, plane_body: int = 0) -> list[tuple[int, int, float, np.ndarray]]:
     """Every penetrating pair: (id_a, id_b or 0 for the plane, depth_m > 0, normal (3,)).
 

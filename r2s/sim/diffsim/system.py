@@ -22,6 +22,8 @@ the collision shape when the inertial frame is shifted).
 
 from __future__ import annotations
 
+import logging
+
 from dataclasses import dataclass, field, replace
 from typing import Literal, Optional
 
@@ -162,7 +164,13 @@ def sample_surface_points(mesh: trimesh.Trimesh, samples: int, seed: int = 0) ->
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     keep = vertices if len(vertices) < samples else np.zeros((0, 3))
     count = samples - len(keep)
-    even, _ = trimesh.sample.sample_surface_even(mesh, count, seed=seed)
+    quiet = logging.getLogger("trimesh")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)  # it warns when it falls short; the shortfall is topped up
+    try:
+        even, _ = trimesh.sample.sample_surface_even(mesh, count, seed=seed)
+    finally:
+        quiet.setLevel(level)
     even = np.asarray(even, dtype=np.float64).reshape(-1, 3)[:count]
     parts = [keep, even]
     if len(even) < count:
