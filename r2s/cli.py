@@ -72,8 +72,8 @@ _STAGE_HELP = {
 
 _WANTS_HELP = "--help" in sys.argv[1:]
 for _name, _summary in _STAGE_HELP.items():
-    if _name == "physopt":
-        continue  # has its own command below (adds --only)
+    if _name in ("physopt", "evaluate"):
+        continue  # have their own commands below (add --only, --engine)
     # The option list imports the stage (and torch); build it only when help is asked for.
     _epilog = _options_epilog(_name) if _WANTS_HELP and _name in sys.argv[1:] else None
     app.command(name=_name, help=_summary, epilog=_epilog)(_make_stage_command(_name, _summary))
@@ -93,6 +93,24 @@ def cmd_physopt(
     if only is not None:
         overrides["only"] = str(only)
     run_single_stage(scene_dir, "physopt", overrides)
+
+
+@app.command(name="evaluate", help=_STAGE_HELP["evaluate"],
+             epilog=_options_epilog("evaluate") if _WANTS_HELP and "evaluate" in sys.argv[1:]
+             else None)
+def cmd_evaluate(
+    scene_dir: Path = typer.Argument(..., help="Scene directory (holds export/)."),
+    engine: Optional[str] = typer.Option(
+        None, "--engine", help="Judge engine: pybullet (default) or mujoco (export/scene.xml); "
+                               "the same as --set engine=..."),
+    set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
+) -> None:
+    from r2s.pipeline import run_single_stage
+
+    overrides = _parse_sets(set_)
+    if engine is not None:
+        overrides["engine"] = engine
+    run_single_stage(scene_dir, "evaluate", overrides)
 
 
 @app.command()

@@ -149,6 +149,37 @@ def test_friction_from_a_struck_box():
     assert mu == pytest.approx(0.3, rel=0.1)
 
 
+def test_friction_is_fitted_on_a_resting_twin_when_the_geometric_state_moves():
+    """The geometric state leans box 1 on a wedge-like tilt so that it slides by itself:
+    measured on it, the push would measure the reconstruction and friction declines. The
+    same push simulated on a resting twin (physopt's state in a real scene), with its own
+    rest rollout, gives the friction back."""
+    box, p1 = _box_at(0.0, 0.0)
+    _, p2 = _box_at(0.0, 0.2)
+    tilted = p1.copy()
+    tilted[:3, :3] = Rotation.from_euler("y", 25, degrees=True).as_matrix()
+    tilted[2, 3] = 0.045
+    push = Push(path_m=np.array([[-0.08, 0.0, 0.03], [-0.02, 0.0, 0.03]]), radius_m=0.01,
+                speed_mps=0.6, settle_s=1.0)
+    twin = world_spec([ObjectModel(1, "a", box, p1, 1.0, friction=0.8),
+                       ObjectModel(2, "b", box, p2, 1.0, friction=0.8)],
+                      [0, 0, 0], [0, 0, 1], 0.8, None)
+    observed = simulate_push(twin, PhysicsModel().with_changes(friction={1: 0.3}), push)
+    geometric = world_spec([ObjectModel(1, "a", box, tilted, 1.0, friction=0.8),
+                            ObjectModel(2, "b", box, p2, 1.0, friction=0.8)],
+                           [0, 0, 0], [0, 0, 1], 0.8, None)
+    phys = physics_residual(geometric, G, {1: True, 2: True}, 1.0, 0.01, np.radians(3.0), 4.0)
+    assert 1 in phys.moving(phys.motion)
+    on_geometric = interaction_residual(geometric, phys.base, push, observed, 0.005)
+    fit = get_effect("friction").fit(Residuals(physics=phys, interaction=on_geometric))
+    assert not fit.identifiable
+    on_twin = interaction_residual(twin, phys.base, push, observed, 0.005, rest=phys,
+                                   stage="physopt")
+    assert on_twin.resting_ids == frozenset({1, 2})
+    fit = get_effect("friction").fit(Residuals(physics=phys, interaction=on_twin))
+    assert fit.params["objects"]["1"]["friction"] == pytest.approx(0.3, rel=0.1)
+
+
 # ---- hooks --------------------------------------------------------------------------------
 
 def _state() -> SceneState:

@@ -21,7 +21,8 @@ from conftest import write_tiny_input
 from r2s.interaction.ground_truth import export_ground_truth
 from r2s.interaction.predict import predict
 from r2s.interaction.push import replay_push
-from r2s.io.input_scene import load_camera
+from r2s.interaction.track import track_objects
+from r2s.io.input_scene import load_camera, load_input
 from r2s.io.interaction_input import load_observed_push, read_true_push
 from r2s.io.mesh_io import load_mesh, save_mesh
 from r2s.io.scene_json import read_gt_scene
@@ -54,10 +55,20 @@ def _com_world(pose: np.ndarray, com: np.ndarray) -> np.ndarray:
     return pose[:3, :3] @ com + pose[:3, 3]
 
 
+def _true_displacements(pushed: Path) -> dict:
+    gt = read_gt_scene(pushed / "gt" / "scene.json")
+    truth = read_true_push(pushed / "gt" / "push.json")
+    return {o.id: _com_world(truth.final[o.id], np.asarray(o.com_in_object))
+            - _com_world(np.asarray(o.world_from_object), np.asarray(o.com_in_object))
+            for o in gt.objects}
+
+
 def test_observed_push_files_are_valid_and_match_a_pybullet_replay(pushed: Path) -> None:
     obs = load_observed_push(pushed)
     assert obs is not None and obs.depth_after_m.shape == obs.masks_after.shape == (120, 160)
-    assert obs.pushed_id in obs.displacement_m
+    assert obs.displacement_m == {}  # the motion is measured from the images, not given
+    truth = read_true_push(pushed / "gt" / "push.json")
+    assert obs.pushed_id == truth.pushed_id and truth.action == obs.action
     speed = obs.action.waypoints[0].speed_mps
     assert 0.05 <= speed <= 0.1  # a slow push, not a strike
 
@@ -70,21 +81,41 @@ def test_observed_push_files_are_valid_and_match_a_pybullet_replay(pushed: Path)
         finally:
             pb.disconnect(physicsClientId=client)
     for o in gt.objects:
-        if o.id not in obs.displacement_m:
-            continue
         com = np.asarray(o.com_in_object)
-        moved = _com_world(final[o.id], com) - _com_world(np.asarray(o.world_from_object), com)
-        np.testing.assert_allclose(obs.displacement_m[o.id], moved, atol=1e-4)
+        np.testing.assert_allclose(_com_world(final[o.id], com),
+                                   _com_world(truth.final[o.id], com), atol=1e-4)
 
     # Along the push, the object goes at most as far as the pusher passes its rearmost
     # point (travel_m), plus the slide after release v^2 / (2 mu g) < 1 mm.
+    moved = _true_displacements(pushed)
     start = np.asarray(obs.action.start)
     direction = np.asarray(obs.action.waypoints[0].position) - start
     direction /= np.linalg.norm(direction)
-    along = float(obs.displacement_m[obs.pushed_id] @ direction)
+    along = float(moved[obs.pushed_id] @ direction)
     assert 0.01 < along <= PushSettings().travel_m + 0.002
-    others = [np.linalg.norm(d) for i, d in obs.displacement_m.items() if i != obs.pushed_id]
+    others = [np.linalg.norm(d) for i, d in moved.items() if i != obs.pushed_id]
     assert max(others, default=0.0) < 0.01
+
+
+def test_tracker_measures_the_true_motion_from_the_images(pushed: Path) -> None:
+    """Registering the true meshes (at their true poses before) to the points seen after
+    the push gives the true COM displacements: within 3 mm (4 boxes, 160x120 pixels)."""
+    gt = read_gt_scene(pushed / "gt" / "scene.json")
+    obs = load_observed_push(pushed)
+    cam, _ = load_camera(pushed / "input" / "camera.json")
+    inp = load_input(pushed)
+    before = observed_points(inp.depth_m, inp.masks, cam.K, cam.world_from_camera)
+    after = observed_points(obs.depth_after_m, obs.masks_after, cam.K, cam.world_from_camera)
+    meshes = {o.id: load_mesh(pushed / "gt" / o.mesh) for o in gt.objects}
+    tracked = track_objects(meshes, {o.id: np.asarray(o.world_from_object) for o in gt.objects},
+                            {o.id: np.asarray(o.com_in_object) for o in gt.objects},
+                            before, after, cam.world_from_camera[:3, 3],
+                            np.asarray(gt.support.normal))
+    truth = _true_displacements(pushed)
+    assert obs.pushed_id in tracked
+    assert np.linalg.norm(truth[obs.pushed_id]) > 0.01
+    for oid, t in tracked.items():
+        np.testing.assert_allclose(t.displacement_m, truth[oid], atol=3e-3)
 
 
 def test_depth_after_shows_the_true_final_poses(pushed: Path) -> None:

@@ -42,3 +42,20 @@ def test_dropped_box_is_unstable_in_both_engines(tmp_path: Path):
         can = next(o for o in _judge(root, engine)["objects"] if o["id"] == 2)
         assert not can["stable"], engine
         assert can["translation_drift_m"] > 0.05, engine  # it falls at least 5 cm
+
+
+def test_cli_engine_option_is_the_engine_option(tmp_path: Path, monkeypatch):
+    """``r2s evaluate SCENE --engine mujoco`` runs evaluate with engine=mujoco."""
+    from typer.testing import CliRunner
+
+    import r2s.pipeline
+    from r2s.cli import app
+
+    calls = []
+    monkeypatch.setattr(r2s.pipeline, "run_single_stage",
+                        lambda scene, stage, overrides: calls.append((stage, overrides)))
+    result = CliRunner().invoke(app, ["evaluate", str(tmp_path), "--engine", "mujoco",
+                                      "--set", "render=false"])
+    assert result.exit_code == 0, result.output
+    assert calls == [("evaluate", {"render": "false", "engine": "mujoco"})]
+    EvalOptions(**calls[0][1])  # the overrides are valid evaluate options

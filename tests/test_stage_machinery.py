@@ -114,3 +114,26 @@ def test_commit_interrupted_between_renames_is_recovered(tmp_path: Path):
     commit_dir(tmp, final)
     assert (final / "a.txt").read_text() == "new"
     assert not (tmp_path / ".old-stage").exists()
+
+
+def test_downstream_reads_the_latest_current_state(tmp_path: Path):
+    """A rerun of init that reproduces its output keeps geomopt's result current (it is
+    read, although init ran last); one that changes its output makes geomopt stale."""
+    from r2s.io.paths import ScenePaths
+    from r2s.stages.manifest import Manifest, StageRecord
+    from r2s.stages.select import latest_state_stage
+
+    paths = ScenePaths(tmp_path)
+    for name in ("init", "geomopt"):
+        paths.state(name).parent.mkdir(parents=True)
+        paths.state(name).write_text("{}")
+    manifest = Manifest(stages={
+        "init": StageRecord(status="done", output_hash="A", started_at="2026-01-01T10:00:00"),
+        "geomopt": StageRecord(status="done", input_hashes={"init": "A", "graph": "G"},
+                               output_hash="B", started_at="2026-01-01T09:00:00"),
+        "graph": StageRecord(status="done", output_hash="G"),
+    })
+    assert latest_state_stage(paths, manifest) == "geomopt"
+    manifest.stages["init"].output_hash = "A2"
+    assert latest_state_stage(paths, manifest) == "init"
+    assert latest_state_stage(paths, manifest, source="geomopt") == "geomopt"

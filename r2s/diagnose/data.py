@@ -210,6 +210,9 @@ class InteractionData:
 
     observed_m / predicted_m : object id -> (3,) displacement of the object, world frame.
     sigma_m : noise of an observed displacement component.
+    resting_ids : objects at rest in a rollout without the push of the state the push is
+        simulated on (None: that state is the physical residual's, whose movers say it).
+    stage : the stage whose state the push is simulated on.
     """
 
     observed_m: dict
@@ -217,6 +220,8 @@ class InteractionData:
     simulate: Optional[InteractionSimulator] = None
     sigma_m: float = 0.005
     pushed_ids: tuple = ()
+    resting_ids: Optional[frozenset] = None
+    stage: Optional[str] = None
 
     def with_prediction(self, predicted_m: dict) -> "InteractionData":
         return replace(self, predicted_m=predicted_m)

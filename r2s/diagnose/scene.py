@@ -56,6 +56,9 @@ class MeasureSettings:
     sigma_rotation_deg: float = 5.0
     cap: float = 4.0
     interaction_sigma_m: float = 0.005
+    interaction_source: str = "auto"
+    """State the observed push is simulated on: auto = physopt's when it ran (the twin a
+    user would predict with, at rest), else the physical residual's."""
     density_kg_m3: Optional[float] = None
     default_friction: Optional[float] = None
     """None: the export stage's (recorded, else default) options, so that diagnose rolls
@@ -88,6 +91,46 @@ def physics_stage(paths: ScenePaths, source: str) -> str:
         if _done(paths, name):
             return name
     raise StageError(f"{paths.root}: no reconstruction yet; run 'r2s init' first")
+
+
+def tracked_displacements(paths: ScenePaths, model: Optional[Mapping[str, Any]],
+                          init_state: SceneState, init_objects: list[ObjectModel],
+                          inp: InputScene) -> dict:
+    """{id: (3,) COM displacement} measured from ``input/interaction/``'s images after the
+    push against the image before (:mod:`r2s.interaction.track`), both corrected by the
+    model's input-level effects; empty when the images after are not given."""
+    from dataclasses import replace
+
+    from r2s.interaction.track import track_objects
+    from r2s.io.interaction_input import load_observed_push
+    from r2s.metrics.push_prediction import observed_points
+
+    after = load_observed_push(paths.root)
+    if after is None or after.depth_after_m is None or after.masks_after is None:
+        return {}
+    raw = load_input(paths.root)
+    seen = corrected_input(replace(raw, depth_m=after.depth_after_m, masks=after.masks_after),
+                           model)
+    cam = inp.camera
+    before = observed_points(inp.depth_m, inp.masks, cam.K, cam.world_from_camera)
+    points_after = observed_points(seen.depth_m, seen.masks, seen.camera.K,
+                                   seen.camera.world_from_camera)
+    meshes = {o.id: o.mesh for o in init_objects}
+    poses = {o.id: np.asarray(o.world_from_object) for o in init_objects}
+    coms = {o.id: (o.com_in_object if o.com_in_object is not None else o.mesh.center_mass)
+            for o in init_objects}
+    tracked = track_objects(meshes, poses, coms, before, points_after,
+                            cam.world_from_camera[:3, 3], np.asarray(init_state.support.normal))
+    return {i: t.displacement_m for i, t in tracked.items()}
+
+
+def interaction_stage(paths: ScenePaths, source: str, physics_stage_name: str) -> str:
+    """The state the observed push is simulated on (see ``MeasureSettings``)."""
+    if source == "auto":
+        return "physopt" if _done(paths, "physopt") else physics_stage_name
+    if not _done(paths, source):
+        raise StageError(f"stage '{source}' has no result in {paths.root}; run it first")
+    return source
 
 
 def export_options(paths: ScenePaths) -> dict:
@@ -153,11 +196,15 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
         state = corrected_state(read_state(paths.stage_dir(stage)), model)
         objects = load_objects(paths, stage, state, inp)
         ex = export_options(paths)
-        spec = world_spec(objects, state.support.point, state.support.normal,
-                          state.support.friction, paths.root / ".cache" / "convex",
-                          settings.density_kg_m3 or ex["density_kg_m3"],
-                          settings.default_friction or ex["default_friction"],
-                          ex["convex_threshold"], ex["max_convex_pieces"])
+
+        def spec_of(state: SceneState, objects: list[ObjectModel]):
+            return world_spec(objects, state.support.point, state.support.normal,
+                              state.support.friction, paths.root / ".cache" / "convex",
+                              settings.density_kg_m3 or ex["density_kg_m3"],
+                              settings.default_friction or ex["default_friction"],
+                              ex["convex_threshold"], ex["max_convex_pieces"])
+
+        spec = spec_of(state, objects)
         keep.append(spec)
         ok = {i: (q.fitness >= settings.min_fitness
                   and (not np.isfinite(q.rmse_m) or q.rmse_m <= settings.max_rmse_m))
@@ -169,8 +216,20 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
         if push_path.is_file():
             progress("simulating the observed push", 0.8)
             push, observed = read_push(push_path)
-            interaction = interaction_residual(spec, physics.base, push, observed,
-                                               settings.interaction_sigma_m)
+            if not observed:
+                observed = tracked_displacements(paths, model, init_state, init_objects, inp)
+                if not observed:
+                    notes.append(f"{paths.interaction}: no observed.json displacements and "
+                                 "no object could be tracked in depth_after/masks_after")
+            push_stage = interaction_stage(paths, settings.interaction_source, stage)
+            push_spec = spec
+            if push_stage != stage:
+                push_state = corrected_state(read_state(paths.stage_dir(push_stage)), model)
+                push_spec = spec_of(push_state, load_objects(paths, push_stage, push_state, inp))
+                keep.append(push_spec)
+            interaction = interaction_residual(
+                push_spec, physics.base, push, observed, settings.interaction_sigma_m,
+                rest=physics if push_stage != stage else None, stage=push_stage)
         elif paths.interaction.is_dir():
             notes.append(f"{paths.interaction}: no {PUSH_FILE}; the interaction is not used")
     residuals = Residuals(registration=registration, support=support, physics=physics,

@@ -72,6 +72,9 @@ class Options(StageOptions):
                                                              "rotation, degrees.")
     interaction_sigma_m: float = Field(0.005, gt=0, description="Noise of an observed push "
                                                                 "displacement component, metres.")
+    interaction_source: Literal["auto", "init", "geomopt", "physopt"] = Field(
+        "auto", description="State the observed push is simulated on (auto: physopt, at rest, "
+                            "when it ran; else the rollout's).")
     keep_copy: bool = Field(False, description="Keep the rerun copy (its path is in the report).")
     plots: bool = Field(True, description="Write residuals.png.")
 
@@ -114,7 +117,8 @@ def settings_of(options: Options) -> MeasureSettings:
         physics_source=options.physics_source, physics=options.physics,
         horizon_s=options.horizon_s, sigma_translation_m=options.sigma_translation_m,
         sigma_rotation_deg=options.sigma_rotation_deg,
-        interaction_sigma_m=options.interaction_sigma_m)
+        interaction_sigma_m=options.interaction_sigma_m,
+        interaction_source=options.interaction_source)
 
 
 def _catalogue(options: Options) -> dict:

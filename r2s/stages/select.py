@@ -15,21 +15,34 @@ GEOMETRY_STAGES: tuple[str, ...] = ("init", "geomopt", "physopt")
 
 def latest_state_stage(paths: ScenePaths, manifest: Manifest, source: Optional[str] = None,
                        candidates: tuple[str, ...] = STATE_STAGES) -> str:
-    """Name of the most recently run state stage with a finished result (or ``source``)."""
+    """Name of the state stage downstream stages should read (or ``source``).
+
+    The last stage in pipeline order with a finished result that is *current*: every
+    stage result it read (its recorded input hashes keyed by a stage name) is still that
+    stage's result. A rerun upstream that changed its output makes the later results
+    stale; one that reproduced its output (a forced rerun, a model change that did not
+    touch it) does not, whichever ran last.
+    """
     def done(name: str) -> bool:
         rec = manifest.stages.get(name)
         return rec is not None and rec.status == "done" and paths.state(name).is_file()
+
+    def current(name: str) -> bool:
+        for key, recorded in manifest.stages[name].input_hashes.items():
+            upstream = manifest.stages.get(key)
+            if upstream is not None and upstream.status == "done" \
+                    and upstream.output_hash != recorded:
+                return False
+        return True
 
     if source is not None and source != "auto":
         if not done(source):
             raise StageError(f"stage '{source}' has no result in {paths.root}; run it first")
         return source
-    finished = [(manifest.stages[n].started_at or "", k, n) for k, n in enumerate(candidates)
-                if done(n)]
+    finished = [n for n in candidates if done(n)]
     if finished:
-        # the most recently run result (a stage rerun upstream makes later ones stale);
-        # ties (same second) go to the later stage in pipeline order
-        return max(finished)[2]
+        fresh = [n for n in finished if current(n)]
+        return (fresh or finished)[-1]
     raise StageError(f"{paths.root}: no reconstruction yet; run 'r2s init' first")
 
 

@@ -9,7 +9,11 @@ after it is rendered by the true camera with the same renderer and depth noise a
 image before (so depth effects act too). Written (docs/interaction.md)::
 
     input/interaction/{push.json, depth_after.png, masks_after.png, observed.json}
-    gt/push.json    true final world_from_object of every object, the pushed id, the action
+    gt/push.json    true final world_from_object and COM displacement of every object,
+                    the pushed id, the action
+
+``observed.json`` names only the pushed object (what the operator knows); the objects'
+motion is for r2s to measure from the images (:mod:`r2s.interaction.track`).
 
 Which object: among the visible objects that rest on the table and are not ball-like,
 each pushed away from the camera, towards it and to either side; the push that moves its object most
@@ -34,7 +38,7 @@ from r2s.interaction.action import EndEffector, PushAction, Waypoint
 from r2s.interaction.ground_truth import export_ground_truth
 from r2s.interaction.push import replay_push
 from r2s.io.atomic import atomic_write_json, commit_dir, recover_dir, scratch_dir
-from r2s.io.input_scene import MIN_MASK_PIXELS, load_camera
+from r2s.io.input_scene import load_camera
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import ScenePaths
 from r2s.io.scene_json import read_gt_scene
@@ -258,18 +262,16 @@ def add_observed_push(scene_dir: Path, settings: PushSettings = PushSettings()) 
         depth, masks = render_after(paths, best.final, work)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    seen = [int(i) for i in np.unique(masks) if i > 0
-            and int(((masks == i) & np.isfinite(depth)).sum()) >= MIN_MASK_PIXELS]
     recover_dir(paths.interaction)
     tmp = scratch_dir(paths.interaction)
     atomic_write_json(tmp / paths.push_action.name, best.action.model_dump())
     write_png(tmp / paths.depth_after_png.name, depth_png(depth, depth_unit_m))
     write_png(tmp / paths.masks_after.name,
               masks.astype(np.uint8 if masks.max() < 256 else np.uint16))
-    atomic_write_json(tmp / paths.observed_push.name, {
-        "pushed_id": best.pushed_id,
-        "objects": [{"id": i, "displacement_m": [float(x) for x in best.com_displacement_m[i]]}
-                    for i in seen if i in best.com_displacement_m]})
+    # what the operator knows: which object was aimed at; the motion is measured from
+    # the images (r2s.interaction.track), the true one is in gt/push.json
+    atomic_write_json(tmp / paths.observed_push.name, {"pushed_id": best.pushed_id,
+                                                       "objects": []})
     commit_dir(tmp, paths.interaction)
     atomic_write_json(paths.gt_push, {
         "pushed_id": best.pushed_id, "action": best.action.model_dump(),

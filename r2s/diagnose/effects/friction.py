@@ -34,7 +34,8 @@ class Friction(Effect):
         "static scene is consistent. Fit: per object, the friction coefficient that "
         "makes the simulated push match the observed displacements (1-D search in log "
         "friction), kept when it explains more than its parameter costs; only for objects "
-        "that rest in the static rollout (else the push measures the reconstruction)."
+        "that rest in a rollout without the push of the state the push is simulated on "
+        "(physopt's when it ran; else the push measures the reconstruction)."
     )
 
     def fit(self, residuals: Residuals) -> EffectFit:
@@ -50,9 +51,10 @@ class Friction(Effect):
         penalty = float(np.log(max(n_obs, 2)))
         base_sse = total_sse(blocks_of(residuals))
         phys = residuals.physics
+        at_rest = (inter.resting_ids.__contains__ if inter.resting_ids is not None
+                   else lambda i: i not in phys.moving(phys.motion))
         resting = [i for i in moved_objects(inter)
-                   if i not in phys.moving(phys.motion)
-                   and (i not in phys.objects or phys.objects[i].geometry_ok)]
+                   if at_rest(i) and (i not in phys.objects or phys.objects[i].geometry_ok)]
         if not resting:
             return not_identifiable(
                 self.name, residuals,

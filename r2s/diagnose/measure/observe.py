@@ -217,14 +217,26 @@ def physics_residual(spec: WorldSpec, gravity: np.ndarray, geometry_ok: dict[int
 
 
 def interaction_residual(spec: WorldSpec, base: PhysicsModel, push: Push, observed: dict,
-                         sigma_m: float) -> InteractionData:
+                         sigma_m: float, rest: Optional[PhysicsData] = None,
+                         stage: Optional[str] = None) -> InteractionData:
+    """The push simulated on ``spec`` under ``base``, against ``observed`` displacements.
+
+    With ``rest`` (its noise levels and horizon), ``spec`` is also rolled out without the
+    push, and the objects that stay within ``rest``'s noise are ``resting_ids``: only
+    their simulated push measures friction rather than the reconstruction's own motion.
+    """
     def simulate(model: PhysicsModel) -> dict:
         return simulate_push(spec, model, push)
 
     predicted = simulate(base)
     known = {i: d for i, d in observed.items() if i in predicted}
+    resting = None
+    if rest is not None:
+        still = rollout_motion(spec, base, rest.horizon_s)
+        resting = frozenset(i for i in still if i not in rest.moving(still))
     return InteractionData(observed_m=known, predicted_m=predicted, simulate=simulate,
-                           sigma_m=sigma_m, pushed_ids=tuple(sorted(known)))
+                           sigma_m=sigma_m, pushed_ids=tuple(sorted(known)),
+                           resting_ids=resting, stage=stage)
 
 
 def measure_fit_qualities(inp: InputScene, objects: list[ObjectModel],
