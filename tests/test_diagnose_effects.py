@@ -240,6 +240,31 @@ def test_friction_fit_from_an_observed_push():
     assert diagnose(res, all_effects()).chosen[0].effect == "friction"
 
 
+def test_friction_declines_when_the_simulated_push_tumbles_what_slid():
+    """Seen to slide (2 degrees). A reconstruction that flips over (180 degrees) at any
+    friction measures its shape: declined. One that flips only at high friction (a struck
+    block tips when its base grips) but slides at the fitted 0.3: fitted as before."""
+    from dataclasses import replace
+
+    phys, inter = _push_world(0.3)
+
+    def motion(flips_above: float):
+        def simulate_motion(model: PhysicsModel) -> dict:
+            d = inter.simulate(model)
+            mu = float(model.friction.get(5, 0.8))
+            turn = np.pi if mu > flips_above else np.radians(3.0)
+            return {5: Motion(d[5], np.array([0.0, turn, 0.0])), 6: Motion(d[6], np.zeros(3))}
+        return simulate_motion
+
+    seen = {5: np.radians(2.0)}  # tilt of its up direction
+    always = replace(inter, observed_tilt_rad=seen, simulate_motion=motion(0.0))
+    fit = get_effect("friction").fit(Residuals(physics=phys, interaction=always))
+    assert not fit.identifiable and "tilts" in fit.note
+    grips = replace(inter, observed_tilt_rad=seen, simulate_motion=motion(0.5))
+    fit = get_effect("friction").fit(Residuals(physics=phys, interaction=grips))
+    assert fit.params["objects"]["5"]["friction"] == pytest.approx(0.3, rel=0.03)
+
+
 def test_friction_is_not_identifiable_without_an_interaction():
     phys, _ = _push_world(0.3)
     fit = get_effect("friction").fit(Residuals(physics=phys))

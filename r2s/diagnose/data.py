@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 from typing import Callable, Optional
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 # ---- registration residual: does the observation agree with metric priors? -------------
@@ -108,6 +109,13 @@ class Motion:
     @property
     def translation_norm_m(self) -> float:
         return float(np.linalg.norm(self.translation_m))
+
+    def tilt_rad(self, up: np.ndarray) -> float:
+        """Angle (rad) between the object's up direction before and after: ``up`` against
+        the rotation applied to it (0 for any turn about ``up``)."""
+        u = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+        turned = Rotation.from_rotvec(self.rotation_rad).apply(u)
+        return float(np.arccos(np.clip(u @ turned, -1.0, 1.0)))
 
     @property
     def angle_rad(self) -> float:
@@ -212,6 +220,7 @@ class InteractionData:
     sigma_m : noise of an observed displacement component.
     resting_ids : objects at rest in a rollout without the push of the state the push is
         simulated on (None: that state is the physical residual's, whose movers say it).
+    observed_tilt_rad / predicted_tilt_rad : see the fields.
     stage : the stage whose state the push is simulated on.
     """
 
@@ -222,6 +231,14 @@ class InteractionData:
     pushed_ids: tuple = ()
     resting_ids: Optional[frozenset] = None
     stage: Optional[str] = None
+    observed_tilt_rad: dict = field(default_factory=dict)
+    predicted_tilt_rad: dict = field(default_factory=dict)
+    """object id -> how far the push turned the object's own up direction (rad; 0 for a
+    slide or a spin about the vertical, pi for a flip), observed (when measured from the
+    images) and predicted under the base model. Tilt, not the whole rotation: a spin
+    about the vertical of a symmetric object is not observable."""
+    simulate_motion: Optional[Callable[[PhysicsModel], dict]] = None
+    """``simulate_motion(model) -> {object id: Motion}`` of the push (rotations too)."""
 
     def with_prediction(self, predicted_m: dict) -> "InteractionData":
         return replace(self, predicted_m=predicted_m)

@@ -93,12 +93,13 @@ def physics_stage(paths: ScenePaths, source: str) -> str:
     raise StageError(f"{paths.root}: no reconstruction yet; run 'r2s init' first")
 
 
-def tracked_displacements(paths: ScenePaths, model: Optional[Mapping[str, Any]],
-                          init_state: SceneState, init_objects: list[ObjectModel],
-                          inp: InputScene) -> dict:
-    """{id: (3,) COM displacement} measured from ``input/interaction/``'s images after the
-    push against the image before (:mod:`r2s.interaction.track`), both corrected by the
-    model's input-level effects; empty when the images after are not given."""
+def tracked_motion(paths: ScenePaths, model: Optional[Mapping[str, Any]],
+                   init_state: SceneState, init_objects: list[ObjectModel],
+                   inp: InputScene) -> tuple[dict, dict]:
+    """``({id: (3,) COM displacement}, {id: tilt of its up direction, rad})`` measured from
+    ``input/interaction/``'s images after the push against the image before
+    (:mod:`r2s.interaction.track`), both corrected by the model's input-level effects;
+    empty when the images after are not given."""
     from dataclasses import replace
 
     from r2s.interaction.track import track_objects
@@ -107,7 +108,7 @@ def tracked_displacements(paths: ScenePaths, model: Optional[Mapping[str, Any]],
 
     after = load_observed_push(paths.root)
     if after is None or after.depth_after_m is None or after.masks_after is None:
-        return {}
+        return {}, {}
     raw = load_input(paths.root)
     seen = corrected_input(replace(raw, depth_m=after.depth_after_m, masks=after.masks_after),
                            model)
@@ -121,7 +122,13 @@ def tracked_displacements(paths: ScenePaths, model: Optional[Mapping[str, Any]],
             for o in init_objects}
     tracked = track_objects(meshes, poses, coms, before, points_after,
                             cam.world_from_camera[:3, 3], np.asarray(init_state.support.normal))
-    return {i: t.displacement_m for i, t in tracked.items()}
+    up = np.asarray(init_state.support.normal, dtype=np.float64)
+    up = up / np.linalg.norm(up)
+    turned = {}
+    for i, t in tracked.items():
+        rel = t.world_from_object_after[:3, :3] @ poses[i][:3, :3].T
+        turned[i] = float(np.arccos(np.clip(up @ rel @ up, -1.0, 1.0)))
+    return {i: t.displacement_m for i, t in tracked.items()}, turned
 
 
 def interaction_stage(paths: ScenePaths, source: str, physics_stage_name: str) -> str:
@@ -216,8 +223,9 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
         if push_path.is_file():
             progress("simulating the observed push", 0.8)
             push, observed = read_push(push_path)
+            turned: dict = {}
             if not observed:
-                observed = tracked_displacements(paths, model, init_state, init_objects, inp)
+                observed, turned = tracked_motion(paths, model, init_state, init_objects, inp)
                 if not observed:
                     notes.append(f"{paths.interaction}: no observed.json displacements and "
                                  "no object could be tracked in depth_after/masks_after")
@@ -229,7 +237,8 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
                 keep.append(push_spec)
             interaction = interaction_residual(
                 push_spec, physics.base, push, observed, settings.interaction_sigma_m,
-                rest=physics if push_stage != stage else None, stage=push_stage)
+                rest=physics if push_stage != stage else None, stage=push_stage,
+                observed_tilt_rad=turned)
         elif paths.interaction.is_dir():
             notes.append(f"{paths.interaction}: no {PUSH_FILE}; the interaction is not used")
     residuals = Residuals(registration=registration, support=support, physics=physics,

@@ -15,12 +15,16 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from r2s.diagnose.blocks import blocks_of, interaction_block, total_sse
-from r2s.diagnose.data import InteractionData, Residuals
+from r2s.diagnose.data import InteractionData, PhysicsModel, Residuals
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
 from r2s.io.state import SceneState
 
 FRICTION_RANGE = (0.05, 2.5)
 """Search range of a body's friction coefficient."""
+MAX_TURN_MISMATCH_DEG = 30.0
+"""An object whose up direction the simulated push tilts this much more (or less) than it
+was seen to tilt tumbles where it slid (or the reverse): its push says nothing about
+friction."""
 
 
 class Friction(Effect):
@@ -35,7 +39,9 @@ class Friction(Effect):
         "makes the simulated push match the observed displacements (1-D search in log "
         "friction), kept when it explains more than its parameter costs; only for objects "
         "that rest in a rollout without the push of the state the push is simulated on "
-        "(physopt's when it ran; else the push measures the reconstruction)."
+        "(physopt's when it ran; else the push measures the reconstruction), and whose "
+        "simulated push tilts them about as much as they were seen to tilt (no flip where "
+        "they slid)."
     )
 
     def fit(self, residuals: Residuals) -> EffectFit:
@@ -60,11 +66,21 @@ class Friction(Effect):
                 self.name, residuals,
                 "the pushed objects do not rest in the static rollout (or fit their points "
                 "badly): the simulated push would measure the reconstruction, not friction")
-        trials = []
+        trials, unlike = [], []
         for obj_id in resting:
             mu = fit_one(residuals, obj_id)
+            if not same_kind_of_motion(inter, phys.base, obj_id, mu):
+                unlike.append(obj_id)
+                continue
             after = with_friction(residuals, {obj_id: mu})
             trials.append((base_sse - total_sse(blocks_of(after)), obj_id, mu, after))
+        if not trials and unlike:
+            return not_identifiable(
+                self.name, residuals,
+                "even with its best friction the simulated push tilts the pushed object "
+                f"more than {MAX_TURN_MISMATCH_DEG:.0f} degrees unlike the observed one (one "
+                "tumbles, the other slides): it measures the reconstructed shape, not "
+                "friction")
         if not trials:
             return not_identifiable(self.name, residuals, "no object moved in the push")
         trials.sort(key=lambda t: -t[0])
@@ -97,6 +113,20 @@ class Friction(Effect):
         parts = [f"object {i}: friction {e['friction']:.2f}"
                  for i, e in params.get("objects", {}).items()]
         return "; ".join(parts) or "no friction change"
+
+
+def same_kind_of_motion(inter: InteractionData, base: PhysicsModel, obj_id: int,
+                        friction: float) -> bool:
+    """The tilt of ``obj_id``'s up direction over the push simulated with ``friction``
+    within ``MAX_TURN_MISMATCH_DEG`` of the observed one (True when either is not known)."""
+    seen = inter.observed_tilt_rad.get(obj_id)
+    if seen is None or inter.simulate_motion is None:
+        return True
+    motion = inter.simulate_motion(base.with_changes(friction={obj_id: friction}))
+    if obj_id not in motion:
+        return True
+    tilt = motion[obj_id].tilt_rad(-np.asarray(base.gravity))
+    return abs(np.degrees(seen - tilt)) <= MAX_TURN_MISMATCH_DEG
 
 
 def moved_objects(inter: InteractionData, sigmas: float = 2.0) -> list[int]:

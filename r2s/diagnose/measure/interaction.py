@@ -68,8 +68,9 @@ def read_push(path: Path) -> tuple[PushAction, dict]:
                     for o in observed.objects}
 
 
-def simulate_push(spec: WorldSpec, model: PhysicsModel, push: Union[Push, PushAction]) -> dict:
-    """{object id: (3,) COM displacement} of the push under ``model`` (240 Hz)."""
+def simulate_push_motion(spec: WorldSpec, model: PhysicsModel,
+                         push: Union[Push, PushAction]) -> dict:
+    """{object id: :class:`~r2s.diagnose.data.Motion`} of the push under ``model`` (240 Hz)."""
     action = push.to_action() if isinstance(push, Push) else push
     c = build_client(spec, model)
     try:
@@ -77,4 +78,9 @@ def simulate_push(spec: WorldSpec, model: PhysicsModel, push: Union[Push, PushAc
         end = run_push(c.client, action, c.body_ids, c.coms)
     finally:
         c.close()
-    return {i: motion_between(start[i], end[i], c.coms[i]).translation_m for i in start}
+    return {i: motion_between(start[i], end[i], c.coms[i]) for i in start}
+
+
+def simulate_push(spec: WorldSpec, model: PhysicsModel, push: Union[Push, PushAction]) -> dict:
+    """{object id: (3,) COM displacement} of the push under ``model`` (240 Hz)."""
+    return {i: m.translation_m for i, m in simulate_push_motion(spec, model, push).items()}

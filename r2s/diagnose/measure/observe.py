@@ -19,7 +19,7 @@ from scipy import ndimage
 from r2s.console import ProgressFn, silent_progress
 from r2s.diagnose.data import (DepthMapData, InteractionData, PhysObject, PhysicsData,
                                PhysicsModel, RegistrationData, ScaleObs, SupportData)
-from r2s.diagnose.measure.interaction import Push, simulate_push
+from r2s.diagnose.measure.interaction import Push, simulate_push, simulate_push_motion
 from r2s.diagnose.measure.physics import (BodySpec, WorldSpec, rollout_motion, support_contacts,
                                           write_pieces)
 from r2s.diagnose.measure.scale_fit import SurfaceModel, fit_prior_scale, free_space
@@ -218,7 +218,8 @@ def physics_residual(spec: WorldSpec, gravity: np.ndarray, geometry_ok: dict[int
 
 def interaction_residual(spec: WorldSpec, base: PhysicsModel, push: Push, observed: dict,
                          sigma_m: float, rest: Optional[PhysicsData] = None,
-                         stage: Optional[str] = None) -> InteractionData:
+                         stage: Optional[str] = None,
+                         observed_tilt_rad: Optional[dict] = None) -> InteractionData:
     """The push simulated on ``spec`` under ``base``, against ``observed`` displacements.
 
     With ``rest`` (its noise levels and horizon), ``spec`` is also rolled out without the
@@ -228,7 +229,8 @@ def interaction_residual(spec: WorldSpec, base: PhysicsModel, push: Push, observ
     def simulate(model: PhysicsModel) -> dict:
         return simulate_push(spec, model, push)
 
-    predicted = simulate(base)
+    motion = simulate_push_motion(spec, base, push)
+    predicted = {i: m.translation_m for i, m in motion.items()}
     known = {i: d for i, d in observed.items() if i in predicted}
     resting = None
     if rest is not None:
@@ -236,7 +238,11 @@ def interaction_residual(spec: WorldSpec, base: PhysicsModel, push: Push, observ
         resting = frozenset(i for i in still if i not in rest.moving(still))
     return InteractionData(observed_m=known, predicted_m=predicted, simulate=simulate,
                            sigma_m=sigma_m, pushed_ids=tuple(sorted(known)),
-                           resting_ids=resting, stage=stage)
+                           resting_ids=resting, stage=stage,
+                           observed_tilt_rad=dict(observed_tilt_rad or {}),
+                           predicted_tilt_rad={i: m.tilt_rad(-base.gravity)
+                                               for i, m in motion.items()},
+                           simulate_motion=lambda model: simulate_push_motion(spec, model, push))
 
 
 def measure_fit_qualities(inp: InputScene, objects: list[ObjectModel],
