@@ -312,3 +312,23 @@ def test_bic_bookkeeping():
     assert fit.delta_bic == pytest.approx(-fit.explained_sse + np.log(6))
     assert np.linalg.norm(tilt_vector([0, 0, 1], [0, np.sin(0.1), np.cos(0.1)])) == \
         pytest.approx(0.1)
+
+
+def test_table_tilt_keeps_a_state_plane_that_already_has_the_tilt():
+    """Applying the effect to a state whose support normal agrees with the fitted one
+    within the support noise changes nothing (a rerun then reproduces the state exactly);
+    a level state gets the fitted normal."""
+    from r2s.io.state import SceneState, SupportPlane
+
+    fit = get_effect("table_tilt").fit(Residuals(support=_support(2.5, (1.0, 0.0, 0.0))))
+    fitted = np.asarray(fit.params["normal_world"])
+    near = Rotation.from_rotvec(np.radians(0.1) * np.array([0.0, 1.0, 0.0])).apply(fitted)
+    state = SceneState(stage="geomopt", support=SupportPlane(point=[0, 0, 0], normal=near.tolist()),
+                       gravity=[0, 0, -9.81], objects=[])
+    kept = get_effect("table_tilt").apply_to_state(state, fit.params)
+    np.testing.assert_array_equal(kept.support.normal, state.support.normal)
+    level = state.model_copy(update={"support": SupportPlane(point=[0, 0, 0], normal=[0, 0, 1])})
+    tilted = get_effect("table_tilt").apply_to_state(level, fit.params)
+    np.testing.assert_allclose(tilted.support.normal, fitted, atol=1e-12)
+    angle = np.degrees(np.arccos(np.clip(np.asarray(tilted.support.normal) @ [0, 0, 1], -1, 1)))
+    assert angle == pytest.approx(2.5, abs=0.2)

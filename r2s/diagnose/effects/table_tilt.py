@@ -19,6 +19,11 @@ from r2s.diagnose.gravity import angle_axis, correction_to_level
 from r2s.io.state import SceneState
 
 
+SAME_PLANE_DEG = 0.3
+"""A state whose support normal is within this angle of the fitted one (the support
+residual's default noise level) already has the tilt; applying the effect keeps it."""
+
+
 class TableTilt(Effect):
     name = "table_tilt"
     n_params = 2
@@ -44,7 +49,15 @@ class TableTilt(Effect):
 
     def apply_to_state(self, state: SceneState, params: dict) -> SceneState:
         new = state.model_copy(deep=True)
-        new.support.normal = [float(x) for x in params["normal_world"]]
+        fitted = np.asarray(params["normal_world"], dtype=np.float64)
+        own = np.asarray(state.support.normal, dtype=np.float64)
+        cos = float(fitted @ own / (np.linalg.norm(fitted) * np.linalg.norm(own)))
+        if np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) <= SAME_PLANE_DEG:
+            # the state's plane (fitted by init to the same table pixels) holds the tilt
+            # already: swapping it for another estimate within the noise changes nothing
+            # physical, but a later optimisation would start from a different point
+            return new
+        new.support.normal = [float(x) for x in fitted]
         new.support.tilted = True  # type: ignore[attr-defined]  (extra key: keep it tilted)
         return new
 
