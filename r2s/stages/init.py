@@ -37,6 +37,7 @@ from r2s.geometry.camera import backproject
 from r2s.geometry.colors import color_mesh_from_image, has_appearance
 from r2s.geometry.completion import complete_from_points
 from r2s.geometry.free_space import view_constraint
+from r2s.geometry.mask_edges import foreign_rim_pixels
 from r2s.geometry.overlay import fit_overlay, render_instances
 from r2s.geometry.plane import PlaneFit, fit_plane_ransac, signed_distance
 from r2s.geometry.registration import (IcpOptions, RegistrationResult, register_prior,
@@ -63,6 +64,9 @@ class Options(StageOptions):
     plane_max_tilt_deg: Optional[float] = Field(
         45.0, gt=0, le=90, description="Only planes within this angle of world +z are support "
         "candidates (a wall is not a table); None = any.")
+    drop_foreign_rim: bool = Field(
+        True, description="Drop mask rim pixels beyond a depth jump or on the support plane "
+                          "(a mask that bleeds past the outline; see geometry/mask_edges.py).")
     mask_erosion_px: int = Field(0, ge=0, description="Erode each instance mask by this many "
                                  "pixels before back-projecting (drops mixed edge pixels; "
                                  "the robust ICP loss already ignores most of them).")
@@ -152,7 +156,13 @@ def _object_points(scene: InputScene, obj_id: int, o: Options, plane: PlaneFit
             mask = eroded
     pts, pix = backproject(scene.depth_m, cam.K, cam.world_from_camera, mask,
                            return_pixels=True)
-    keep = signed_distance(pts, plane.point, plane.normal) > -2 * o.plane_threshold_m
+    height = signed_distance(pts, plane.point, plane.normal)
+    keep = height > -2 * o.plane_threshold_m
+    if o.drop_foreign_rim and len(pts):
+        height_img = np.full(mask.shape, np.nan)
+        height_img[pix[:, 0], pix[:, 1]] = height
+        foreign = foreign_rim_pixels(scene.depth_m, mask, height_img)
+        keep &= ~foreign[pix[:, 0], pix[:, 1]]
     if keep.sum() >= MIN_OBJECT_POINTS:
         pts, pix = pts[keep], pix[keep]
     return pts, pix
