@@ -242,8 +242,8 @@ def _verify_and_repair(params: dict, pieces: dict, state: SceneState, order: lis
     """PyBullet rounds: check, repair the movers' COM, raise their friction, settle; then,
     if anything still moves, a damped dynamic rest. Rounds need not improve monotonically
     (settling one object can unsettle its neighbour), so the best checked state is kept:
-    fewest objects failing the judge's criterion, then fewest moving at all, then least
-    drift. Returns that state's drift per object."""
+    fewest objects failing the judge's criterion, then the mildest failures, then fewest
+    moving at all, then least drift. Returns that state's drift per object."""
     make_world = _world_factory(params, pieces, state, order, opt)
     export_order = [o.id for o in state.objects]
     orders = [export_order, export_order[::-1]] if len(export_order) > 1 else [export_order]
@@ -252,9 +252,14 @@ def _verify_and_repair(params: dict, pieces: dict, state: SceneState, order: lis
         return [i for i, (t, r) in d.items() if t > opt.tolerance_m or r > opt.tolerance_deg]
 
     def score(d: dict) -> tuple:
-        failing = [i for i, (t, r) in d.items()
-                   if t >= opt.judge_translation_m or r >= opt.judge_rotation_deg]
-        return (len(failing), len(moving(d)), sum(t for t, _ in d.values()))
+        """Fewest objects failing the judge's criterion; among those, the failures
+        closest to passing (a state whose failures creep is a better start for the damped
+        rest than one where they fly off); then fewest moving at all; then least drift."""
+        severity = {i: max(t / opt.judge_translation_m, r / opt.judge_rotation_deg)
+                    for i, (t, r) in d.items()}
+        failing = [i for i, s in severity.items() if s >= 1.0]
+        return (len(failing), round(sum(severity[i] for i in failing), 1), len(moving(d)),
+                sum(t for t, _ in d.values()))
 
     result = _check(make_world, params, orders, opt.verify_duration_s)
     log["rounds"].append({"round": 0, "action": "check", "moving": moving(result),
