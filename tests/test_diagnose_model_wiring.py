@@ -72,7 +72,9 @@ def test_depth_scale_in_the_model_scales_init_points_about_the_camera(tmp_path):
     scene = write_scene(tmp_path / "scene", depth_scale=s)
     before_input = snapshot(scene / "input")
     _set_model(scene, {"effects": {"depth_scale": {"scale": s, "offset_m": 0.0}}})
-    run_stage(get_stage("init"), scene)
+    # every masked pixel kept (the rim filter is tested in test_mask_edges.py)
+    spec = get_stage("init")
+    run_stage(spec, scene, build_options(spec, None, {"drop_foreign_rim": "false"}))
     assert snapshot(scene / "input") == before_input
 
     raw = load_input(scene)

@@ -65,8 +65,8 @@ class Options(StageOptions):
         45.0, gt=0, le=90, description="Only planes within this angle of world +z are support "
         "candidates (a wall is not a table); None = any.")
     drop_foreign_rim: bool = Field(
-        True, description="Drop mask rim pixels beyond a depth jump or on the support plane "
-                          "(a mask that bleeds past the outline; see geometry/mask_edges.py).")
+        True, description="Drop mask rim pixels on the far side of a depth jump (a mask "
+                          "that bleeds past the outline; see geometry/mask_edges.py).")
     mask_erosion_px: int = Field(0, ge=0, description="Erode each instance mask by this many "
                                  "pixels before back-projecting (drops mixed edge pixels; "
                                  "the robust ICP loss already ignores most of them).")
@@ -156,13 +156,9 @@ def _object_points(scene: InputScene, obj_id: int, o: Options, plane: PlaneFit
             mask = eroded
     pts, pix = backproject(scene.depth_m, cam.K, cam.world_from_camera, mask,
                            return_pixels=True)
-    height = signed_distance(pts, plane.point, plane.normal)
-    keep = height > -2 * o.plane_threshold_m
+    keep = signed_distance(pts, plane.point, plane.normal) > -2 * o.plane_threshold_m
     if o.drop_foreign_rim and len(pts):
-        height_img = np.full(mask.shape, np.nan)
-        height_img[pix[:, 0], pix[:, 1]] = height
-        foreign = foreign_rim_pixels(scene.depth_m, mask, height_img)
-        keep &= ~foreign[pix[:, 0], pix[:, 1]]
+        keep &= ~foreign_rim_pixels(scene.depth_m, mask)[pix[:, 0], pix[:, 1]]
     if keep.sum() >= MIN_OBJECT_POINTS:
         pts, pix = pts[keep], pix[keep]
     return pts, pix
