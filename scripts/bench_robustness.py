@@ -14,7 +14,7 @@ ground-truth errors; the mask perturbations are run with init's rim filter
   observation); ``half priors``: every second object's prior removed.
 
 Usage:
-  python scripts/bench_robustness.py --scenes 2 --out docs/generalisation.md
+  python scripts/bench_robustness.py --scenes 3 --out docs/generalisation.md
 Scenes go to bench/robustness/; a copy whose metrics exist is not rerun.
 """
 
@@ -49,7 +49,6 @@ VARIANTS: list[tuple[str, str, bool]] = [
     ("no priors", "nopriors", True),
     ("half priors", "halfpriors", True),
 ]
-
 
 
 def perturb(src: Path, out: Path, kind: str, seed: int = 0) -> None:

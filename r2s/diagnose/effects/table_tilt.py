@@ -13,6 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from r2s.diagnose.blocks import tilt_vector
 from r2s.diagnose.data import Residuals
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
 from r2s.diagnose.gravity import angle_axis, correction_to_level
@@ -50,9 +51,8 @@ class TableTilt(Effect):
     def apply_to_state(self, state: SceneState, params: dict) -> SceneState:
         new = state.model_copy(deep=True)
         fitted = np.asarray(params["normal_world"], dtype=np.float64)
-        own = np.asarray(state.support.normal, dtype=np.float64)
-        cos = float(fitted @ own / (np.linalg.norm(fitted) * np.linalg.norm(own)))
-        if np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) <= SAME_PLANE_DEG:
+        apart_deg = np.degrees(np.linalg.norm(tilt_vector(state.support.normal, fitted)))
+        if apart_deg <= SAME_PLANE_DEG:
             # the state's plane (fitted by init to the same table pixels) holds the tilt
             # already: swapping it for another estimate within the noise changes nothing
             # physical, but a later optimisation would start from a different point
