@@ -157,8 +157,7 @@ def synth(
                             "(a realistic RealSense-like capture); see the list below."),
 ) -> None:
     """Make a benchmark scene: settled clutter, rendered RGB-D and masks, priors, gt/."""
-    from r2s.synth.generate import SynthOptions, synthesize
-    from r2s.synth.options import options_from_command_line
+    from r2s.synth.options import SynthOptions, options_from_command_line
 
     given = dict(objects=objects, count=count, seed=seed, noise=noise, width=width,
                  height=height, push=push)
@@ -166,6 +165,7 @@ def synth(
     explicit = {k: v for k, v in given.items() if v != defaults[k].default}
     explicit["effects"] = _parse_sets(effect)
     opts = options_from_command_line(explicit, _parse_sets(set_))
+    from r2s.synth.generate import synthesize  # (imports PyBullet: after the checks)
     from r2s.console import stage_progress
 
     with stage_progress("synth") as progress:

@@ -321,3 +321,22 @@ def test_realistic_scene_is_deterministic(realistic_scene: Path, tmp_path: Path)
     again = tmp_path / "again"
     synthesize(again, SynthOptions(seed=11, **SMALL_REAL))
     assert _hashes(again) == _hashes(realistic_scene)
+
+
+@pytest.mark.parametrize("sets,what", [
+    (["--set", "realism=kinect"], "realism"),
+    (["--count", "4", "--set", "count=5"], "both"),
+])
+def test_synth_command_line_rejects_bad_sets_in_one_line(tmp_path: Path, sets: list[str],
+                                                         what: str) -> None:
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "r2s.cli", "synth", str(tmp_path / "s"),
+                           *sets], capture_output=True, text=True,
+                          cwd=Path(__file__).resolve().parents[1])
+    assert proc.returncode == 1  # R2SError's exit code
+    lines = [line for line in proc.stderr.strip().splitlines() if line.strip()]
+    assert len(lines) == 1 and what in lines[0], proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+    assert not (tmp_path / "s").exists()
