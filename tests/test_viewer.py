@@ -71,7 +71,7 @@ def test_playback_finds_the_falling_box(viewer_scene: Path) -> None:
 
 
 def test_missing_export_is_one_clear_error(tmp_path: Path) -> None:
-    with pytest.raises(R2SError, match="export/scene.json is missing"):
+    with pytest.raises(R2SError, match="export/scene.json: missing"):
         load_viewer_scene(tmp_path)
 
 
@@ -126,3 +126,17 @@ def test_viewer_page_in_headless_chromium(viewer_scene: Path, tmp_path: Path) ->
     assert blue.sum() > 30, blue.sum()
     assert red.sum() > 30, red.sum()
     assert BOX_RGB[1][2] > BOX_RGB[1][0]      # (the test's colour assumption)
+
+
+def test_view_command_without_export_is_one_line(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    from tests.conftest import REPO
+
+    proc = subprocess.run([sys.executable, "-m", "r2s.cli", "view", str(tmp_path)],
+                          capture_output=True, text=True, cwd=REPO, timeout=120,
+                          env={**__import__("os").environ, "PYTHONPATH": str(REPO)})
+    assert proc.returncode == 2
+    assert "export/scene.json: missing" in proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stdout + proc.stderr

@@ -16,7 +16,7 @@ import numpy as np
 import trimesh
 from pydantic import ValidationError
 
-from r2s.errors import InputError, R2SError
+from r2s.errors import InputError
 from r2s.geometry.camera import backproject
 from r2s.graph.schema import ContactGraph
 from r2s.io.input_scene import Camera, load_camera, load_depth, load_rgb, read_json_file
@@ -173,11 +173,11 @@ def _rollout_settings(paths: ScenePaths) -> tuple[float, float]:
 
 
 def load_viewer_scene(scene_dir: Path, max_points: int = MAX_POINTS) -> ViewerScene:
-    """Read a scene directory for the viewer. :class:`R2SError` without ``export/scene.json``."""
+    """Read a scene directory for the viewer. :class:`InputError` without ``export/scene.json``."""
     paths = ScenePaths(Path(scene_dir))
     if not paths.export_scene.is_file():
-        raise R2SError(f"{paths.export_scene} is missing; run 'r2s run {scene_dir}' "
-                       "(or 'r2s export') first")
+        raise InputError(paths.export_scene,
+                         f"missing; run 'r2s run {scene_dir}' (or 'r2s export') first")
     export = read_export_scene(paths.export_scene)
     scene = ViewerScene(root=paths.root, export=export, objects=_objects(paths, export))
     try:
