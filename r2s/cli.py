@@ -222,7 +222,8 @@ def report(
 def view(
     scene_dir: Path = typer.Argument(..., help="Scene directory with export/ (r2s run first)."),
     port: int = typer.Option(8080, help="Port to serve on."),
-    host: str = typer.Option("127.0.0.1", help="Address to bind (0.0.0.0 to share on the network)."),
+    host: str = typer.Option("127.0.0.1",
+                             help="Address to bind (0.0.0.0 to share on the network)."),
     screenshot: Optional[Path] = typer.Option(
         None, help="Save a picture of the page (headless Chromium) to this PNG and exit."),
 ) -> None:

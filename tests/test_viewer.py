@@ -81,6 +81,7 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+@pytest.mark.slow
 def test_viewer_page_in_headless_chromium(viewer_scene: Path, tmp_path: Path) -> None:
     if find_chromium() is None:
         pytest.skip("no Chromium on PATH (scripts/setup_env.sh installs Debian's 'chromium')")

@@ -2,9 +2,10 @@
 
 Left: the first frame, every object labelled with its id and label at its silhouette.
 Right: the last frame; objects that stayed are faded, each object that moved
-(:mod:`r2s.metrics.motion`) is outlined in red, its silhouette at t = 0 is outlined in white (before / after), an arrow joins its
-centre of mass at the start and at the end, and a label gives id, label, displacement (mm)
-and turn (deg). Below: the judge's summary and the list of moved objects.
+(:mod:`r2s.metrics.motion`) is outlined in red and its silhouette at t = 0 in white
+(before / after), an arrow joins its centre of mass at the start and at the end, and a
+label gives id, label, displacement (mm) and turn (deg). Below: the judge's summary and
+the list of moved objects.
 """
 
 from __future__ import annotations

@@ -235,9 +235,11 @@ def build_viewer(server: viser.ViserServer, scene: ViewerScene, playback: Playba
         server.gui.add_markdown(f"_{note}_")
     c = scene.centre_m()
     if scene.camera is not None:
-        # behind the input camera, so its frustum and the whole table are in view
+        # behind and above the input camera: the whole table in view, the camera's
+        # frustum below the objects rather than in front of them
         eye = scene.camera.world_from_camera[:3, 3]
-        server.initial_camera.position = c + 1.6 * (eye - c)
+        back = 1.3 * (eye - c)
+        server.initial_camera.position = c + back + np.array([0, 0, 0.5 * np.linalg.norm(back)])
     else:
         server.initial_camera.position = c + np.array([0.5, -0.5, 0.5])
     server.initial_camera.look_at = c
