@@ -82,7 +82,8 @@ def _free_port() -> int:
 
 
 @pytest.mark.slow
-def test_viewer_page_in_headless_chromium(viewer_scene: Path, tmp_path: Path) -> None:
+def test_viewer_page_in_headless_chromium(viewer_scene: Path, tmp_path: Path,
+                                          capsys: pytest.CaptureFixture) -> None:
     if find_chromium() is None:
         pytest.skip("no Chromium on PATH (scripts/setup_env.sh installs Debian's 'chromium')")
     app = start_viewer(viewer_scene, host="127.0.0.1", port=_free_port())
@@ -110,7 +111,8 @@ def test_viewer_page_in_headless_chromium(viewer_scene: Path, tmp_path: Path) ->
 
         shot_path = tmp_path / "viewer_screenshot.png"
         image = screenshot(app.url, shot_path, timeout_s=150.0)
-        print(f"\nviewer screenshot: {shot_path}")
+        with capsys.disabled():                    # shown in the test output, even when passing
+            print(f"\nviewer screenshot: {shot_path}")
     finally:
         app.stop()
     assert shot_path.is_file()
