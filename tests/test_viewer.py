@@ -143,3 +143,24 @@ def test_view_command_without_export_is_one_line(tmp_path: Path) -> None:
     assert proc.returncode == 2
     assert "export/scene.json: missing" in proc.stdout + proc.stderr
     assert "Traceback" not in proc.stdout + proc.stderr
+
+
+def test_player_plays_to_the_end_and_stops_without_loop(viewer_scene: Path) -> None:
+    import time
+
+    app = start_viewer(viewer_scene, host="127.0.0.1", port=_free_port())
+    try:
+        c = app.controls
+        c.loop.value = False
+        c.play.value = True
+        deadline = time.monotonic() + 30.0
+        while c.play.value and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert c.play.value is False                      # it stopped by itself at the end
+        assert float(c.time_slider.value) == pytest.approx(c.time_slider.max, abs=1e-9)
+        k = list(app.playback.ids).index(3)
+        frame3 = app.server.scene.get_handle_by_name("/objects/3")
+        np.testing.assert_allclose(frame3.position, app.playback.world_from_object[-1, k, :3, 3],
+                                   atol=1e-6)
+    finally:
+        app.stop()
