@@ -163,7 +163,8 @@ def observe(true_depth_m: np.ndarray, K: np.ndarray, rgb: np.ndarray, segment: n
     dark = DARK_DROP * np.clip(1.0 - lum / DARK_LUMINANCE, 0.0, 1.0)
     glossy_ids = [k for k in np.unique(segment) if k >= 0 and rng.random() < GLOSSY_OBJECT]
     glossy = np.isin(segment, glossy_ids)
-    specular = (glossy & (np.nan_to_num(cos, nan=0.0) > SPECULAR_COS)) | (lum >= SATURATED_LUMINANCE)
+    specular = (glossy & (np.nan_to_num(cos, nan=0.0) > SPECULAR_COS)) \
+        | (lum >= SATURATED_LUMINANCE)
     thin = thin_parts(segment)
     # later causes overwrite earlier ones in the record; any one of them drops the pixel
     drops = [
