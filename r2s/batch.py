@@ -16,7 +16,7 @@ import numpy as np
 
 from r2s.errors import R2SError
 from r2s.io.paths import ScenePaths
-from r2s.stages.manifest import load_manifest
+from r2s.io.manifest import load_manifest
 
 COLUMNS: tuple[tuple[str, str, str], ...] = (
     # (header, key in the aggregate, format)

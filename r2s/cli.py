@@ -23,7 +23,7 @@ SET_HELP = "Stage option as key=value (repeatable); see the list below."
 
 
 def _options_epilog(stage_name: str) -> str:
-    from r2s.stages.registry import get_stage
+    from r2s.runner.registry import get_stage
 
     try:
         spec = get_stage(stage_name)
@@ -50,7 +50,7 @@ def _make_stage_command(stage_name: str, summary: str) -> Callable:
         scene_dir: Path = typer.Argument(..., help="Scene directory (holds input/)."),
         set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
     ) -> None:
-        from r2s.pipeline import run_single_stage
+        from r2s.runner.pipeline import run_single_stage
 
         run_single_stage(scene_dir, stage_name, _parse_sets(set_))
 
@@ -87,7 +87,7 @@ def cmd_physopt(
                                                           "the objects it supports."),
     set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
 ) -> None:
-    from r2s.pipeline import run_single_stage
+    from r2s.runner.pipeline import run_single_stage
 
     overrides = _parse_sets(set_)
     if only is not None:
@@ -105,7 +105,7 @@ def cmd_evaluate(
                                "the same as --set engine=..."),
     set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
 ) -> None:
-    from r2s.pipeline import run_single_stage
+    from r2s.runner.pipeline import run_single_stage
 
     overrides = _parse_sets(set_)
     if engine is not None:
@@ -123,7 +123,7 @@ def run(
                                              help="stage.key=value option (repeatable)."),
 ) -> None:
     """Run every stage whose inputs or options changed, and skip the rest."""
-    from r2s.pipeline import run_pipeline
+    from r2s.runner.pipeline import run_pipeline
 
     run_pipeline(scene_dir, force=force, until=until, skip=list(skip or []),
                  overrides=_parse_sets(set_))

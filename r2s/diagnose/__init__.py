@@ -5,6 +5,6 @@
   PyBullet rollout, observed push);
 - :mod:`r2s.diagnose.effects`: the catalogue of candidate effects, one module each;
 - :mod:`r2s.diagnose.ranking`: BIC ranking against "no effect";
-- :mod:`r2s.diagnose.model`: the hooks other stages call to use the kept effects;
-- :mod:`r2s.diagnose.rerun`: the before/after comparison on a copy of the scene.
+- :mod:`r2s.scene_model`: the hooks other stages call to use the kept effects;
+- :mod:`r2s.runner.rerun`: the before/after comparison on a copy of the scene.
 """

@@ -19,7 +19,7 @@ import numpy as np
 import pybullet as pb
 
 from r2s.errors import StageError
-from r2s.interaction.ground_truth import export_ground_truth
+from r2s.sim.export_scene import export_ground_truth
 from r2s.io.atomic import atomic_write_json, commit_dir, recover_dir, scratch_dir
 from r2s.io.paths import ScenePaths
 from r2s.physopt.hierarchy import parents_from_graph

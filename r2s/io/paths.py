@@ -15,17 +15,13 @@ rest is r2s's own, one folder per stage)::
       evaluate/         metrics.json, rollout.png
       diagnose/         report.json, report.md, plots
       manifest.json     per stage: options, input/output hashes, timing, status
+      .cache/convex/    memo of convex decompositions (safe to delete)
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-
-STAGE_NAMES: tuple[str, ...] = (
-    "init", "graph", "geomopt", "physopt", "texture", "export", "evaluate",
-)
-"""Pipeline order of the stages that ``r2s run`` drives. ``diagnose`` is run on demand."""
 
 STATE_STAGES: tuple[str, ...] = ("init", "geomopt", "physopt", "texture")
 """Stages that write a :class:`r2s.io.state.SceneState` (poses, meshes, physics)."""
@@ -128,6 +124,16 @@ class ScenePaths:
     def state(self, stage: str) -> Path:
         """``<stage>/state.json`` of a state-writing stage."""
         return self.stage_dir(stage) / "state.json"
+
+    @property
+    def cache(self) -> Path:
+        """``.cache/``: memos that are safe to delete (never hashed: a dot folder)."""
+        return self.root / ".cache"
+
+    @property
+    def convex_cache(self) -> Path:
+        """``.cache/convex/``: convex pieces keyed by mesh and parameters."""
+        return self.cache / "convex"
 
     @property
     def contact_graph(self) -> Path:

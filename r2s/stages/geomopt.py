@@ -29,10 +29,10 @@ from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import ScenePaths
 from r2s.io.sdf_io import load_sdf, read_sdf_meta, save_sdf
 from r2s.io.state import SceneState, read_state, write_state
-from r2s.stages.base import StageContext, StageOptions, StageSpec
+from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.stages.graph import read_contact_graph
-from r2s.stages.manifest import Manifest
-from r2s.stages.select import latest_state_stage
+from r2s.io.manifest import Manifest
+from r2s.io.latest_state import latest_state_stage
 
 SOURCE_STAGES = ("init",)
 SDF_PADDING_FRACTION = 0.1

@@ -22,9 +22,9 @@ from r2s.io.input_scene import read_json_file
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import ScenePaths
 from r2s.io.state import SceneState, read_state
-from r2s.stages.base import StageContext, StageOptions, StageSpec
-from r2s.stages.manifest import Manifest
-from r2s.stages.select import latest_state_stage
+from r2s.runner.base import StageContext, StageOptions, StageSpec
+from r2s.io.manifest import Manifest
+from r2s.io.latest_state import latest_state_stage
 
 SOURCE_STAGES = ("init",)
 

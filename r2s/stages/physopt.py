@@ -20,7 +20,7 @@ import numpy as np
 import pybullet as pb
 from pydantic import Field
 
-from r2s.diagnose.model import corrected_state
+from r2s.scene_model import corrected_state
 from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.mass_properties import mass_properties
 from r2s.io.atomic import atomic_write_json
@@ -31,9 +31,9 @@ from r2s.errors import StageError
 from r2s.physopt.hierarchy import descendants, order_root_to_leaves, parents_from_graph
 from r2s.physopt.pybullet_world import (SimBody, build_world, depenetrate, drift, settle,
                                         settle_damped, world_gravity)
-from r2s.stages.base import StageContext, StageOptions, StageSpec
-from r2s.stages.manifest import Manifest
-from r2s.stages.select import latest_state_stage
+from r2s.runner.base import StageContext, StageOptions, StageSpec
+from r2s.io.manifest import Manifest
+from r2s.io.latest_state import latest_state_stage
 
 
 class Options(StageOptions):
@@ -369,7 +369,7 @@ def _damped_rest(make_world, params: dict, order: list[int], orders: list[list[i
 def run(ctx: StageContext) -> dict:
     paths, opt = ctx.paths, ctx.options
     src = _source(paths, opt, ctx.manifest)
-    # with the effects kept in the scene's model (COM, friction, table: r2s.diagnose.model)
+    # with the effects kept in the scene's model (COM, friction, table: r2s.scene_model)
     state = corrected_state(read_state(paths.stage_dir(src)), ctx.manifest.model)
     meshes = {o.id: welded(load_mesh(paths.stage_dir(src) / o.mesh)) for o in state.objects}
     cache = paths.root / ".cache" / "convex"
