@@ -19,16 +19,14 @@ app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="r2s: a physically consistent simulation twin of a cluttered tabletop "
                        "from one RGB-D image and instance masks.")
 
-SET_HELP = "Stage option as key=value (repeatable); see the list below."
+SET_HELP = ("Stage option as key=value (repeatable), applied to the options the stage last ran "
+            "with (else the defaults); see the list below.")
 
 
 def _options_epilog(stage_name: str) -> str:
-    from r2s.runner.registry import get_stage
+    from r2s.runner.registry import get_stage  # imports the stage (and torch): --help only
 
-    try:
-        spec = get_stage(stage_name)
-    except ModuleNotFoundError:
-        return ""
+    spec = get_stage(stage_name)
     lines = ["Options for --set key=value:\n\n"]
     for name, fld in spec.options_type.model_fields.items():
         lines.append(f"{name} (default {fld.default!r}): {fld.description or ''}\n\n")
@@ -90,6 +88,8 @@ def cmd_physopt(
     from r2s.runner.pipeline import run_single_stage
 
     overrides = _parse_sets(set_)
+    # ``--only`` is one run's choice: without it, the whole scene (not a recorded --only)
+    overrides.setdefault("only", "null" if only is None else str(only))
     if only is not None:
         overrides["only"] = str(only)
     run_single_stage(scene_dir, "physopt", overrides)

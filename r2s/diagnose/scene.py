@@ -25,7 +25,7 @@ from r2s.console import ProgressFn, silent_progress
 from r2s.diagnose.data import Residuals
 from r2s.diagnose.gt_errors import export_gt_errors, metrics_subset, state_gt_errors
 from r2s.diagnose.measure.interaction import read_push
-from r2s.diagnose.measure.observe import (FitQuality, ObjectModel, depth_residual_map,
+from r2s.diagnose.measure.observe import (ObjectModel, depth_residual_map,
                                           interaction_residual, measure_fit_qualities,
                                           physics_residual, registration_residual,
                                           support_residual, world_spec)
