@@ -15,7 +15,7 @@ Everything is measured on the input as the scene's model corrects it
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
@@ -31,10 +31,13 @@ from r2s.diagnose.measure.observe import (ObjectModel, depth_residual_map,
                                           support_residual, world_spec)
 from r2s.scene_model import corrected_input, corrected_state
 from r2s.errors import StageError
+from r2s.interaction.track import track_objects
 from r2s.io.input_scene import InputScene, load_input, read_json_file
+from r2s.io.interaction_input import load_observed_push
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import ScenePaths
 from r2s.io.scene_json import read_export_scene, read_gt_scene
+from r2s.metrics.push_prediction import observed_points
 from r2s.io.state import SceneState, read_state
 from r2s.io.latest_state import GEOMETRY_STAGES, finished, latest_state_stage
 from r2s.io.manifest import load_manifest
@@ -93,12 +96,6 @@ def tracked_motion(paths: ScenePaths, model: Optional[Mapping[str, Any]],
     ``input/interaction/``'s images after the push against the image before
     (:mod:`r2s.interaction.track`), both corrected by the model's input-level effects;
     empty when the images after are not given."""
-    from dataclasses import replace
-
-    from r2s.interaction.track import track_objects
-    from r2s.io.interaction_input import load_observed_push
-    from r2s.metrics.push_prediction import observed_points
-
     after = load_observed_push(paths.root)
     if after is None or after.depth_after_m is None or after.masks_after is None:
         return {}, {}

@@ -32,7 +32,7 @@ from r2s.errors import StageError
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json
 from r2s.io.input_scene import load_camera, load_masks, load_rgb
 from r2s.io.mesh_io import load_mesh
-from r2s.io.paths import ScenePaths
+from r2s.io.paths import METRICS_FILE, ScenePaths
 from r2s.io.scene_json import ExportObject, GtScene, read_gt_scene
 from r2s.metrics.geometry import (centroid_error_mm, posed, rotation_error_deg, surface_metrics,
                                   volumetric_iou)
@@ -257,7 +257,7 @@ def run(ctx: StageContext) -> dict:
 
     export_ids = {o.id for o in export_objects}
     gt_ids = {o.id for o in gt.objects} if gt is not None else set()
-    atomic_write_json(ctx.out_dir / "metrics.json", {
+    atomic_write_json(ctx.out_dir / METRICS_FILE, {
         "format": "r2s-metrics", "version": 1,
         **scene,
         "objects": objects,

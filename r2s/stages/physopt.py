@@ -28,7 +28,7 @@ from r2s.io.atomic import atomic_write_json
 from r2s.io.latest_state import latest_state_stage
 from r2s.io.manifest import Manifest
 from r2s.io.mesh_io import load_mesh, welded
-from r2s.io.paths import ScenePaths
+from r2s.io.paths import PHYSOPT_LOG_FILE, ScenePaths
 from r2s.io.state import SceneState, read_state, write_state
 from r2s.physopt.hierarchy import (descendants, lowest_points_m, order_root_to_leaves,
                                    parents_from_graph)
@@ -132,7 +132,7 @@ def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, fi
     support = state.support.model_copy(update={"friction": ctx.options.support_friction})
     write_state(ctx.out_dir, SceneState(stage="physopt", gravity=state.gravity, support=support,
                                         objects=objects))
-    atomic_write_json(ctx.out_dir / "log.json",
+    atomic_write_json(ctx.out_dir / PHYSOPT_LOG_FILE,
                       {**log, "objects": {str(k): v for k, v in log["objects"].items()}})
 
 

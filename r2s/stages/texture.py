@@ -34,7 +34,7 @@ from r2s.errors import StageError
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json
 from r2s.io.input_scene import load_input
 from r2s.io.mesh_io import load_mesh, save_mesh
-from r2s.io.paths import ScenePaths
+from r2s.io.paths import METRICS_FILE, ScenePaths
 from r2s.io.state import read_state, write_state
 from r2s.metrics.rendering import masked_psnr, rendering_metrics, side_by_side, ssim_map
 from r2s.render.shade import mesh_colour, shade
@@ -158,7 +158,7 @@ def run(ctx: StageContext) -> dict:
         "ssim_before": metrics_before["ssim"], "ssim_after": metrics_after["ssim"],
     }
     t_end = time.perf_counter()
-    atomic_write_json(ctx.out_dir / "metrics.json", {
+    atomic_write_json(ctx.out_dir / METRICS_FILE, {
         **summary,
         "before": metrics_before,
         "after": metrics_after,
