@@ -100,10 +100,11 @@ class Options(StageOptions):
     global_fallback_fitness: float = Field(0.5, ge=0, le=1, description="Run the global pose "
                                            "search too when ICP from the given prior pose "
                                            "explains fewer observed points than this.")
-    axis_scale: bool = Field(True, description="After registration, refine the prior's scale "
-                             "per axis (single-image priors get proportions wrong per axis) "
-                             "with its pose, and rest its bottom on the support plane when "
-                             "it is within contact distance (geometry/prior_refine.py).")
+    axis_scale: bool = Field(False, description="After registration, refine the prior's "
+                             "scale per axis (single-image priors get proportions wrong per "
+                             "axis) with its pose, and keep it out of the support plane "
+                             "(geometry/prior_refine.py). Off by default: measured neutral "
+                             "on init's CD (docs/realistic.md).")
     axis_scale_min: float = Field(0.8, gt=0, le=1, description="Smallest per-axis scale.")
     axis_scale_max: float = Field(1.25, ge=1, description="Largest per-axis scale.")
     rest_on_support: bool = Field(False, description="With axis_scale: pull a prior whose "
