@@ -1,15 +1,22 @@
-"""Drive stages on a scene: one stage alone, or every stale stage in order (``r2s run``)."""
+"""Drive stages on a scene: one stage alone, or every stale stage in order (``r2s run``).
+
+Nothing here prints: progress goes to a ``progress_factory`` (``name -> context manager
+yielding a ProgressFn``; the CLI passes rich's bars) and input warnings to ``on_warning``
+(default: the ``r2s`` logger). The CLI prints the results (:mod:`r2s.cli_output`).
+"""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Callable, ContextManager, Iterator, Optional
 
 from pydantic import ValidationError
 
-from r2s.console import console, print_table, stage_progress
-from r2s.errors import R2SError
+from r2s.console import ProgressFn, silent_progress
+from r2s.errors import R2SError, UsageError
 from r2s.io.input_scene import load_input
 from r2s.io.paths import ScenePaths
 from r2s.io.manifest import Manifest, load_manifest
@@ -27,10 +34,35 @@ def _coerce(value: Any) -> Any:
         return value
 
 
+ProgressFactory = Callable[[str], ContextManager[ProgressFn]]
+"""``factory(stage_name)`` -> context manager yielding the stage's progress callback."""
+
+
+@contextlib.contextmanager
+def silent_progress_factory(name: str) -> Iterator[ProgressFn]:  # noqa: ARG001
+    """No progress display (the Python API's default)."""
+    yield silent_progress
+
+
+def _log_warning(message: str) -> None:
+    logging.getLogger("r2s").warning(message)
+
+
 def _option_error(spec: StageSpec, exc: ValidationError) -> R2SError:
     err = exc.errors()[0]
     loc = ".".join(str(p) for p in err.get("loc", ()))
+    if err.get("type") == "extra_forbidden":
+        valid = ", ".join(spec.options_type.model_fields)
+        return UsageError(f"{spec.name} has no option '{loc}'; its options are {valid}")
     return R2SError(f"{spec.name} option {loc}: {err.get('msg')}")
+
+
+def check_option_names(spec: StageSpec, values: dict) -> None:
+    """A :class:`UsageError` naming the stage's options when ``values`` has another key."""
+    unknown = [k for k in values if k not in spec.options_type.model_fields]
+    if unknown:
+        raise UsageError(f"{spec.name} has no option '{unknown[0]}'; its options are "
+                         f"{', '.join(spec.options_type.model_fields)}")
 
 
 def build_options(spec: StageSpec, base: Optional[dict], overrides: dict) -> StageOptions:
@@ -54,49 +86,58 @@ def stage_options(spec: StageSpec, manifest: Manifest, overrides: dict) -> Stage
         raise _option_error(spec, exc) from None
 
 
-def _check_scene(scene_dir: Path) -> ScenePaths:
+def _check_scene(scene_dir: Path, on_warning: Callable[[str], None]) -> ScenePaths:
     paths = ScenePaths(Path(scene_dir))
     for warning in load_input(paths.root).warnings:  # validates input/ up front
-        console.print(f"[yellow]warning:[/yellow] {warning}")
+        on_warning(warning)
     return paths
 
 
-def run_single_stage(scene_dir: Path, name: str, overrides: dict) -> StageResult:
+def run_single_stage(scene_dir: Path, name: str, overrides: dict,
+                     progress_factory: ProgressFactory = silent_progress_factory,
+                     on_warning: Callable[[str], None] = _log_warning) -> StageResult:
     """``r2s <stage> SCENE``: rerun that one stage with its recorded options (else the
     defaults) plus overrides."""
-    paths = _check_scene(scene_dir)
+    paths = _check_scene(scene_dir, on_warning)
     spec = get_stage(name)
     options = stage_options(spec, load_manifest(paths.manifest), overrides)
-    with stage_progress(name) as progress:
-        result = run_stage(spec, paths.root, options, progress=progress, force=True)
-    _print_results([result])
-    return result
+    with progress_factory(name) as progress:
+        return run_stage(spec, paths.root, options, progress=progress, force=True)
 
 
-def _split_overrides(overrides: dict) -> dict[str, dict]:
+def split_overrides(overrides: dict, stages: tuple[str, ...] = PIPELINE) -> dict[str, dict]:
+    """``{"physopt.iterations": "50"}`` -> ``{"physopt": {"iterations": "50"}}``; a key
+    without a stage or with a stage not in ``stages`` is a :class:`UsageError`."""
     per_stage: dict[str, dict] = {}
     for key, value in overrides.items():
         if "." not in key:
-            raise R2SError(f"--set {key}={value}: use stage.key=value with 'r2s run'")
+            raise UsageError(f"--set {key}={value}: use stage.key=value with 'r2s run' "
+                             f"(stages: {', '.join(stages)})")
         stage, field = key.split(".", 1)
+        if stage not in stages:
+            raise UsageError(f"--set {key}={value}: unknown stage '{stage}'; stages are "
+                             f"{', '.join(stages)}")
         per_stage.setdefault(stage, {})[field] = value
     return per_stage
 
 
 def run_pipeline(scene_dir: Path, force: bool = False, until: Optional[str] = None,
-                 skip: Optional[list[str]] = None, overrides: Optional[dict] = None
-                 ) -> list[StageResult]:
+                 skip: Optional[list[str]] = None, overrides: Optional[dict] = None,
+                 progress_factory: ProgressFactory = silent_progress_factory,
+                 on_warning: Callable[[str], None] = _log_warning) -> list[StageResult]:
     """Run each stage of :data:`PIPELINE` that is stale (or all with ``force``).
 
     Stages replay the options recorded in the manifest, updated by ``overrides``
-    (``{"physopt.iterations": "50"}``).
+    (``{"physopt.iterations": "50"}``). Every override is validated before any stage runs.
     """
-    paths = _check_scene(scene_dir)
     skip = list(skip or [])
     for name in skip + ([until] if until else []):
         if name not in PIPELINE:
-            raise R2SError(f"unknown stage '{name}'; stages are {', '.join(PIPELINE)}")
-    per_stage = _split_overrides(overrides or {})
+            raise UsageError(f"unknown stage '{name}'; stages are {', '.join(PIPELINE)}")
+    per_stage = split_overrides(overrides or {})
+    for name, values in per_stage.items():  # a misspelt option fails before anything runs
+        check_option_names(get_stage(name), values)
+    paths = _check_scene(scene_dir, on_warning)
     order = list(PIPELINE[: PIPELINE.index(until) + 1] if until else PIPELINE)
     results: list[StageResult] = []
     for name in order:
@@ -112,30 +153,7 @@ def run_pipeline(scene_dir: Path, force: bool = False, until: Optional[str] = No
                 results.append(StageResult(name, ran=False, seconds=0.0,
                                            summary=rec.summary if rec else {}, reason="up to date"))
                 continue
-        with stage_progress(name) as progress:
+        with progress_factory(name) as progress:
             results.append(run_stage(spec, paths.root, options, progress=progress, force=True))
-    _print_results(results)
     return results
 
-
-def _print_results(results: list[StageResult]) -> None:
-    rows = []
-    for r in results:
-        status = "[green]ran[/green]" if r.ran else f"[dim]{r.reason}[/dim]"
-        brief = ", ".join(f"{k}={_fmt(v)}" for k, v in list(r.summary.items())[:4])
-        rows.append([r.name, status, f"{r.seconds:.1f}", brief])
-    print_table("stages", ["stage", "status", "seconds", "summary"], rows)
-    for r in results:
-        if r.name == "evaluate" and r.summary:
-            _print_metrics(r.summary)
-
-
-def _fmt(v: Any) -> str:
-    if isinstance(v, float):
-        return f"{v:.4g}"
-    return str(v)
-
-
-def _print_metrics(summary: dict) -> None:
-    rows = [[k, _fmt(v)] for k, v in summary.items() if not isinstance(v, (list, dict))]
-    print_table("evaluation", ["metric", "value"], rows)
