@@ -56,6 +56,28 @@ class RunResult:
         raise KeyError(name)
 
 
+def _quiet_native_imports() -> None:
+    """Import PyBullet with file descriptors 1 and 2 pointed at /dev/null: its C code
+    prints a build banner at import, which an API call must not."""
+    import os
+    import sys
+
+    if "pybullet" in sys.modules:
+        return
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved, devnull = [os.dup(1), os.dup(2)], os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        os.dup2(devnull, 2)
+        import pybullet  # noqa: F401
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in saved + [devnull]:
+            os.close(fd)
+
+
 def _progress_factory(progress: Optional[ProgressFn]) -> Callable:
     @contextlib.contextmanager
     def factory(name: str) -> Iterator[ProgressFn]:
@@ -94,6 +116,7 @@ def run(scene_dir: str | Path, stages: Optional[Sequence[str]] = None,
     from r2s.runner.pipeline import run_pipeline
     from r2s.runner.registry import PIPELINE
 
+    _quiet_native_imports()
     chosen = list(PIPELINE if stages is None else stages)
     unknown = [s for s in chosen if s not in PIPELINE]
     if unknown:
@@ -117,6 +140,7 @@ def run_stage(scene_dir: str | Path, name: str, progress: Optional[ProgressFn] =
 
     if name not in STAGES:
         raise UsageError(f"unknown stage '{name}'; stages are {', '.join(STAGES)}")
+    _quiet_native_imports()
     r = run_single_stage(Path(scene_dir), name, {k: _as_text(v) for k, v in options.items()},
                          progress_factory=_progress_factory(progress), on_warning=lambda m: None)
     return StageRun(r.name, r.ran, float(r.seconds), r.reason, dict(r.summary))

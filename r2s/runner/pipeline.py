@@ -147,6 +147,7 @@ def run_pipeline(scene_dir: Path, force: bool = False, until: Optional[str] = No
         manifest = load_manifest(paths.manifest)
         rec = manifest.stages.get(name)
         options = stage_options(spec, manifest, per_stage.get(name, {}))
+        reason = "forced"
         if not force:
             reason = staleness(spec, paths, options, manifest)
             if not reason:
@@ -154,6 +155,8 @@ def run_pipeline(scene_dir: Path, force: bool = False, until: Optional[str] = No
                                            summary=rec.summary if rec else {}, reason="up to date"))
                 continue
         with progress_factory(name) as progress:
-            results.append(run_stage(spec, paths.root, options, progress=progress, force=True))
+            result = run_stage(spec, paths.root, options, progress=progress, force=True)
+        result.reason = reason  # why it ran: "never ran", "options changed", ...
+        results.append(result)
     return results
 
