@@ -50,14 +50,13 @@ def _options_epilog(stage_name: str) -> str:
 def _run_and_report(scene_dir: Path, as_json: bool, call: Callable) -> None:
     """Run ``call(progress_factory, on_warning)`` -> results, then print the tables and the
     closing line, or (``--json``) only the JSON document on stdout."""
-    from r2s.cli_output import (emit_json, print_results, print_where, results_document,
-                                stdout_reserved_for_json)
+    from r2s.cli_output import (emit_json, no_progress, print_results, print_where,
+                                results_document, stdout_reserved_for_json)
     from r2s.console import print_warning, stage_progress
-    from r2s.runner.pipeline import silent_progress_factory
 
     if as_json:
         with stdout_reserved_for_json() as out:
-            results = call(silent_progress_factory, print_warning)
+            results = call(no_progress, print_warning)
             print_results(results)  # on stderr
             emit_json(out, results_document(scene_dir, results))
         return
@@ -162,12 +161,24 @@ def run(
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
 ) -> None:
     """Run every stage whose inputs or options changed, and skip the rest."""
-    from r2s.runner.pipeline import run_pipeline
-
     overrides = _parse_sets(set_)
-    _run_and_report(scene_dir, as_json, lambda progress_factory, on_warning: run_pipeline(
-        scene_dir, force=force, until=until, skip=list(skip or []), overrides=overrides,
-        progress_factory=progress_factory, on_warning=on_warning))
+
+    def call(progress_factory: Callable, on_warning: Callable) -> list:
+        if not force:  # a finished scene answers without importing any stage
+            from r2s.runner.noop import quick_up_to_date
+
+            quick = quick_up_to_date(scene_dir, until, list(skip or []), overrides)
+            if quick is not None:
+                for warning in quick[1]:
+                    on_warning(warning)
+                return quick[0]
+        from r2s.runner.pipeline import run_pipeline
+
+        return run_pipeline(scene_dir, force=force, until=until, skip=list(skip or []),
+                            overrides=overrides, progress_factory=progress_factory,
+                            on_warning=on_warning)
+
+    _run_and_report(scene_dir, as_json, call)
 
 
 @app.command()

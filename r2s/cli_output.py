@@ -19,6 +19,12 @@ from r2s.io.paths import ScenePaths
 PICTURE_SUFFIXES = (".png", ".jpg", ".svg")
 
 
+@contextlib.contextmanager
+def no_progress(name: str) -> Iterator[Any]:  # noqa: ARG001
+    """A progress factory that shows nothing (``--json``)."""
+    yield lambda message, fraction: None
+
+
 def _fmt(v: Any) -> str:
     if isinstance(v, float):
         return f"{v:.4g}"

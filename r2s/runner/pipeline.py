@@ -21,6 +21,7 @@ from r2s.io.input_scene import load_input
 from r2s.io.paths import ScenePaths
 from r2s.io.manifest import Manifest, load_manifest
 from r2s.io.recorded_options import recorded_options
+from r2s.runner import noop
 from r2s.runner.base import StageOptions, StageResult, StageSpec, run_stage, staleness
 from r2s.runner.registry import PIPELINE, get_stage
 
@@ -131,18 +132,26 @@ def run_pipeline(scene_dir: Path, force: bool = False, until: Optional[str] = No
     (``{"physopt.iterations": "50"}``). Every override is validated before any stage runs.
     """
     skip = list(skip or [])
+    overrides = dict(overrides or {})
+    if not force:  # nothing changed since a full check found everything up to date
+        quick = noop.quick_up_to_date(Path(scene_dir), until, skip, overrides)
+        if quick is not None:
+            for warning in quick[1]:
+                on_warning(warning)
+            return quick[0]  # type: ignore[return-value]
     for name in skip + ([until] if until else []):
         if name not in PIPELINE:
             raise UsageError(f"unknown stage '{name}'; stages are {', '.join(PIPELINE)}")
-    per_stage = split_overrides(overrides or {})
+    per_stage = split_overrides(overrides)
     for name, values in per_stage.items():  # a misspelt option fails before anything runs
         check_option_names(get_stage(name), values)
-    paths = _check_scene(scene_dir, on_warning)
-    order = list(PIPELINE[: PIPELINE.index(until) + 1] if until else PIPELINE)
+    noop.forget(Path(scene_dir))
+    warnings: list[str] = []
+    paths = _check_scene(scene_dir, lambda w: (warnings.append(w), on_warning(w)))
+    order = [n for n in (PIPELINE[: PIPELINE.index(until) + 1] if until else PIPELINE)
+             if n not in skip]
     results: list[StageResult] = []
     for name in order:
-        if name in skip:
-            continue
         spec = get_stage(name)
         manifest = load_manifest(paths.manifest)
         rec = manifest.stages.get(name)
@@ -158,5 +167,23 @@ def run_pipeline(scene_dir: Path, force: bool = False, until: Optional[str] = No
             result = run_stage(spec, paths.root, options, progress=progress, force=True)
         result.reason = reason  # why it ran: "never ran", "options changed", ...
         results.append(result)
+    _remember_if_current(paths, order, per_stage, noop.arguments_key(until, skip, overrides),
+                         warnings)
     return results
+
+
+def _remember_if_current(paths: ScenePaths, order: list[str], per_stage: dict[str, dict],
+                         args_key: str, warnings: list[str]) -> None:
+    """When a full check now finds every stage of ``order`` up to date (the stage modules
+    are loaded already; this costs the hashes), record it for :mod:`r2s.runner.noop`."""
+    manifest = load_manifest(paths.manifest)
+    external: set[str] = set()
+    for name in order:
+        spec = get_stage(name)
+        if staleness(spec, paths, stage_options(spec, manifest, per_stage.get(name, {})),
+                     manifest):
+            return
+        rec = manifest.stages[name]
+        external |= {k for k in rec.input_hashes if Path(k).is_absolute()}
+    noop.remember_up_to_date(paths.root, order, sorted(external), args_key, warnings)
 
