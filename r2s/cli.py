@@ -312,6 +312,22 @@ def _batch_line(message: str) -> None:
     console.print(message, soft_wrap=True, highlight=False, markup=False)
 
 
+@app.command()
+def view(
+    scene_dir: Path = typer.Argument(..., help="Scene directory with export/ (r2s run first)."),
+    port: int = typer.Option(8080, help="Port to serve on."),
+    host: str = typer.Option("127.0.0.1",
+                             help="Address to bind (0.0.0.0 to share on the network)."),
+    screenshot: Optional[Path] = typer.Option(
+        None, help="Save a picture of the page (headless Chromium) to this PNG and exit."),
+) -> None:
+    """Look at the scene in the browser: observed points, reconstruction, collision pieces,
+    contact graph, and a player of the judge's rollout (objects that moved in red)."""
+    from r2s.viewer.cli_entry import view_scene
+
+    view_scene(scene_dir, host=host, port=port, screenshot=screenshot)
+
+
 def main(argv: Optional[List[str]] = None) -> None:
     """Console-script entry point: expected errors and usage mistakes become one red line
     and an exit code (usage: 2); a bug keeps its traceback."""
