@@ -216,8 +216,10 @@ def predict(
         None, "--action", help="Push action JSON (see docs/interaction.md); default: the "
                                "observed push input/interaction/push.json."),
 ) -> None:
-    """Replay a pusher trajectory on export/ in PyBullet; writes predict/ (with the error
-    against the observed outcome when the push is input/interaction/'s)."""
+    """Replay a pusher trajectory on export/ in PyBullet; writes predict/.
+
+    With the observed push (input/interaction/), predict/ also holds the error against
+    the observed outcome."""
     from r2s.console import print_table
     from r2s.interaction.predict import predict as run_predict
 
@@ -288,8 +290,10 @@ def batch(
                                                   "and report.csv."),
     label: str = typer.Option("r2s", help="Row label of the aggregate."),
 ) -> None:
-    """Run every scene under ROOT (resuming: up-to-date stages are skipped), then write
-    report.md and report.csv with one row per scene and the aggregate."""
+    """Run every scene under ROOT (any depth, resumable); write report.md and report.csv.
+
+    Each scene is an 'r2s run' (up-to-date stages are skipped); the reports have one row
+    per scene and the aggregate of 'r2s report'. See docs/batch.md for clusters."""
     from r2s.runner.batch import BatchConfig, run_batch
 
     config = BatchConfig(jobs=jobs, executor=executor, threads=threads,
@@ -334,11 +338,11 @@ def main(argv: Optional[List[str]] = None) -> None:
     import logging
 
     logging.getLogger("trimesh").setLevel(logging.ERROR)  # its sampling chatter is not news
-    from r2s.cli_help import flags_without_type
+    from r2s.cli_help import tidy_help
 
     try:
         command = typer.main.get_command(app)
-        flags_without_type(command)
+        tidy_help(command)
         command.main(args=argv, prog_name="r2s", standalone_mode=False)
     except R2SError as exc:
         print_error(str(exc))

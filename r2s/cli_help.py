@@ -3,7 +3,8 @@ declares the commands).
 
 - :func:`options_epilog`: the ``--set key=value`` options of a stage, from its pydantic
   options (type, default, description);
-- :func:`flags_without_type`: boolean flags show as ``--force``, not ``--force <bool>``;
+- :func:`tidy_help`: boolean flags show as ``--force``, not ``--force <bool>``, and a
+  docstring's paragraphs are re-flowed (typer keeps the source's line breaks);
 - :func:`usage_error`: a usage mistake (unknown command or option, missing argument) as one
   line and exit code 2, for typer's own exception classes and click's alike.
 """
@@ -43,9 +44,19 @@ def options_epilog(stage_name: str) -> str:
     return "".join(lines)
 
 
-def flags_without_type(command: Any) -> None:
-    """Give every boolean flag of ``command`` and its subcommands an empty metavar, so help
-    shows ``--json`` rather than ``--json <bool>`` (typer >= 0.20 prints the type)."""
+def reflow(text: str) -> str:
+    """Join the lines of each paragraph (paragraphs are separated by blank lines)."""
+    paragraphs = [" ".join(line.strip() for line in block.splitlines() if line.strip())
+                  for block in text.strip().split("\n\n")]
+    return "\n\n".join(p for p in paragraphs if p)
+
+
+def tidy_help(command: Any) -> None:
+    """For ``command`` and its subcommands: give every boolean flag an empty metavar, so
+    help shows ``--json`` rather than ``--json <bool>`` (typer >= 0.20 prints the type),
+    and re-flow the help text's paragraphs."""
+    if isinstance(getattr(command, "help", None), str):
+        command.help = reflow(command.help)
     for param in getattr(command, "params", []):
         if getattr(param, "is_flag", False):
             param.metavar = ""
@@ -59,7 +70,7 @@ def flags_without_type(command: Any) -> None:
         except Exception:  # noqa: BLE001 - cosmetic only; help still works without it
             pass
     for sub in getattr(command, "commands", {}).values():
-        flags_without_type(sub)
+        tidy_help(sub)
 
 
 def _click_classes() -> tuple[tuple[type, ...], tuple[type, ...], tuple[type, ...]]:
