@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -68,10 +69,48 @@ def child(scene: Path) -> dict:
             **timers, **{f"{r.name}_s": r.seconds for r in results}}
 
 
-def timed_command(cmd: list[str], cwd: Path = REPO) -> float:
+CPU_S: dict[str, list[float]] = {}
+"""CPU seconds (user + system) of the child of each timed command, by label: less sensitive
+than wall time to other jobs on a shared machine."""
+
+
+def timed_command(cmd: list[str], cwd: Path = REPO, label: str = "") -> float:
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     subprocess.run(cmd, cwd=cwd, check=True, capture_output=True)
-    return time.perf_counter() - t0
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if label:
+        CPU_S.setdefault(label, []).append(after.ru_utime - before.ru_utime
+                                           + after.ru_stime - before.ru_stime)
+    return wall
+
+
+def startup_rows(py: str, repeats: int) -> list[tuple[str, str]]:
+    startup = [timed_command([py, "-c", "import r2s"], label="import") for _ in range(repeats)]
+    helps = [timed_command([py, "-m", "r2s.cli", "--help"], label="help")
+             for _ in range(repeats)]
+    return [("`python -c 'import r2s'`",
+             f"{median(startup):.2f} s (CPU {median(CPU_S['import']):.2f} s)"),
+            ("`r2s --help`", f"{median(helps):.2f} s (CPU {median(CPU_S['help']):.2f} s)")]
+
+
+def noop_rows(py: str, scene: Path, label: str, repeats: int) -> list[tuple[str, str]]:
+    """No-op ``r2s run`` on a finished scene: the shortcut, then the full check (the record
+    removed before each), alternating so both see the same load."""
+    quick, full = [], []
+    for _ in range(repeats):
+        timed_command([py, "-m", "r2s.cli", "run", str(scene)])  # (re)writes the record
+        quick.append(timed_command([py, "-m", "r2s.cli", "run", str(scene)], label="quick"))
+        (scene / ".cache" / "up_to_date.json").unlink(missing_ok=True)
+        full.append(timed_command([py, "-m", "r2s.cli", "run", str(scene)], label="full"))
+    return [(f"{label}: no-op `r2s run` (shortcut)",
+             f"{median(quick):.2f} s (CPU {median(CPU_S['quick']):.2f} s)"),
+            (f"{label}: no-op `r2s run` (full hash check, all stages imported)",
+             f"{median(full):.2f} s (CPU {median(CPU_S['full']):.2f} s)"),
+            (f"{label}: no-op shortcut / full check",
+             f"{median(quick) / median(full):.2f}x wall, "
+             f"{median(CPU_S['quick']) / median(CPU_S['full']):.2f}x CPU")]
 
 
 def input_copy(src: Path, dst: Path) -> Path:
@@ -100,6 +139,8 @@ def main() -> None:
     ap.add_argument("--height", type=int, default=480)
     ap.add_argument("--note", default="", help="Said under the table (e.g. a shared machine).")
     ap.add_argument("--out", type=Path, default=REPO / "docs" / "speed.md")
+    ap.add_argument("--noop-only", type=Path, metavar="SCENE",
+                    help="Only start-up and the no-op run on this finished scene (own table).")
     args = ap.parse_args()
     py = sys.executable
     env_py = [py, "-m", "r2s.cli"]
@@ -107,11 +148,12 @@ def main() -> None:
         print(json.dumps(child(args.child)))
         return
 
-    rows: list[tuple[str, str]] = []
-    startup = [timed_command([py, "-c", "import r2s"]) for _ in range(args.repeats)]
-    helps = [timed_command(env_py + ["--help"]) for _ in range(args.repeats)]
-    rows += [("`python -c 'import r2s'`", f"{median(startup):.2f} s"),
-             ("`r2s --help`", f"{median(helps):.2f} s")]
+    if args.noop_only is not None:
+        rows = startup_rows(py, args.repeats) + noop_rows(py, args.noop_only, "finished scene",
+                                                          args.repeats)
+        write_table(args, rows, "speed-noop")
+        return
+    rows = startup_rows(py, args.repeats)
     for count in [int(c) for c in args.objects.split(",")]:
         source = args.work / f"synth{count}"
         if not (source / "input").is_dir():
@@ -128,11 +170,6 @@ def main() -> None:
             wall = time.perf_counter() - t0
             runs.append({**json.loads(out.stdout.strip().splitlines()[-1]), "wall_s": wall})
         last = args.work / f"run{count}_{args.repeats - 1}"
-        noop = [timed_command(env_py + ["run", str(last)]) for _ in range(args.repeats)]
-        full_check = []
-        for _ in range(args.repeats):
-            (last / ".cache" / "up_to_date.json").unlink(missing_ok=True)
-            full_check.append(timed_command(env_py + ["run", str(last)]))
         label = f"{n_obj} objects"
         rows.append((f"**{label}: `r2s run` end to end** (process wall)",
                      f"**{median([r['wall_s'] for r in runs]):.1f} s**"))
@@ -143,18 +180,18 @@ def main() -> None:
                      f"{median([r['physopt_pybullet_s'] for r in runs]):.2f} s"))
         rows.append((f"{label}: SDF building (geomopt + physopt)",
                      f"{median([r['sdf_s'] for r in runs]):.2f} s"))
-        rows.append((f"{label}: no-op `r2s run` (shortcut)", f"{median(noop):.2f} s"))
-        rows.append((f"{label}: no-op `r2s run` (full hash check, all stages imported)",
-                     f"{median(full_check):.2f} s"))
-        rows.append((f"{label}: no-op shortcut / full check",
-                     f"{median(noop) / median(full_check):.2f}x"))
+        rows += noop_rows(py, last, label, args.repeats)
+    write_table(args, rows, "speed")
+
+
+def write_table(args: argparse.Namespace, rows: list[tuple[str, str]], block: str) -> None:
     table = "| what | median of %d |\n|---|---|\n" % args.repeats
     table += "".join(f"| {a} | {b} |\n" for a, b in rows)
     if args.note:
         table += f"\n{args.note}\n"
     cpu = os.cpu_count()
     table += f"\nMachine: {cpu} CPU cores; Python {sys.version.split()[0]}.\n"
-    write_generated_block(args.out, "speed", table)
+    write_generated_block(args.out, block, table)
     print(table)
 
 
