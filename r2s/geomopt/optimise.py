@@ -5,6 +5,11 @@ L_geom = lambda_pen * sum over pair directions of penetration(a's samples in b's
        + lambda_con * sum over support edges of contact(child's samples in parent's SDF
                                                       or the support plane)
        + lambda_anchor * sum over objects of anchor(rotation, translation)
+       + lambda_free_space * sum over objects of free_space(samples vs the observed view)
+
+The free-space term (:mod:`r2s.geomopt.free_space`, only when the problem carries an
+observed view) keeps each object where the camera saw it: samples in space the camera saw
+empty are pulled sideways towards the object's mask.
 
 Penetration pairs are every support pair and every proximity pair, in both directions.
 Terms follow the paper (:mod:`r2s.geomopt.losses`); the choices that make them behave:
@@ -38,6 +43,7 @@ import torch
 from r2s.console import ProgressFn, silent_progress
 from r2s.geometry.sdf import SdfGrid
 from r2s.geometry.sdf_torch import pack_grids, plane_sdf, sdf_lookup_packed
+from r2s.geomopt.free_space import FreeSpaceTerm, ObservedView
 from r2s.geomopt.losses import anchor_term, contact_term, penetration_term
 from r2s.geomopt.poses import axis_angle_to_matrix, move_points, updated_poses
 
@@ -60,6 +66,16 @@ class GeomParams:
     """Scale of the rotation anchor, as the displacement of the object's farthest point."""
     top_k: int = 10
     length_scale_m: float = 1e-3
+    lambda_free_space: float = 10.0
+    """Weight of the free-space term (mean over samples of metres outside the mask band,
+    over ``length_scale_m``); used only when the problem has an observed view."""
+    free_space_band_px: float = 2.0
+    free_space_margin_m: float = 0.015
+    """A sample violates free space when the observed depth at its pixel is at least this
+    far behind it and the pixel is farther than ``free_space_band_px`` from its mask."""
+    free_space_horizontal: bool = True
+    """The free-space term moves objects only across gravity and turns them only about it:
+    it does not tilt them off their supports (their height and tilt answer to contact)."""
     contact_rotates: bool = False
     """Whether the contact term may rotate objects and move them sideways. TopK-min
     rewards tilting a flat face (a tilted face has lower corners), a feedback that tips
@@ -86,6 +102,9 @@ class GeomParams:
     stop_gap_m: float = 5e-4
     """Stop early (after ``min_iterations``, checked every ``check_every``) once no
     penetration is deeper and no support gap wider than these."""
+    stop_free_space: float = 0.05
+    """... and the free-space term (mean distance outside the mask band, mm, summed over
+    objects) is below this."""
     check_every: int = 10
     tolerance: float = 5e-3
     patience: int = 30
@@ -114,6 +133,8 @@ class GeomProblem:
     penetration_pairs: list[tuple[int, int]] = field(default_factory=list)
     up: np.ndarray | None = None
     """(3,) against gravity; the plane normal when None."""
+    view: ObservedView | None = None
+    """What the camera saw (objects in the order of ``ids``), for the free-space term."""
 
 
 @dataclass
@@ -129,6 +150,10 @@ class GeomResult:
     seconds: float
     before: dict[str, float]
     after: dict[str, float]
+    free_space_before: list[float] | None = None
+    free_space_after: list[float] | None = None
+    """(M,) share of each object's samples in space the camera saw empty (None without a
+    view)."""
 
 
 def object_radii(problem: GeomProblem) -> np.ndarray:
@@ -148,8 +173,14 @@ class _Tensors:
     in parent) use all samples, since TopK-min needs the closest ones wherever they are.
     """
 
-    def __init__(self, problem: GeomProblem, dtype: torch.dtype = torch.float32):
+    def __init__(self, problem: GeomProblem, dtype: torch.dtype = torch.float32,
+                 params: GeomParams | None = None):
         self.dtype = dtype
+        params = params or GeomParams()
+        self.free_space = None
+        if problem.view is not None:
+            self.free_space = FreeSpaceTerm(problem.view, params.free_space_band_px,
+                                            params.free_space_margin_m, dtype)
         self.m = len(problem.ids)
         init = torch.as_tensor(problem.init_world_from_object, dtype=dtype)
         self.init_rot, self.init_trans = init[:, :3, :3], init[:, :3, 3]
@@ -209,6 +240,16 @@ class _Tensors:
             - ((self.centres + trans)[:, None, :] @ a)[:, 0]
         return a, b
 
+    def horizontal(self, trans: torch.Tensor, omega: torch.Tensor
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``trans`` with its gradient across ``up`` and ``omega`` with its gradient along
+        ``up`` (same values): a move across gravity and a turn about it."""
+        along = trans @ self.up
+        t = trans - (along - along.detach())[:, None] * self.up
+        spin = omega @ self.up
+        w = omega.detach() + (spin - spin.detach())[:, None] * self.up
+        return t, w
+
     def vertical(self, trans: torch.Tensor) -> torch.Tensor:
         """``trans`` with its gradient projected on ``up`` (same value)."""
         along = trans @ self.up
@@ -265,6 +306,13 @@ def _terms(t: _Tensors, x: torch.Tensor, radius: torch.Tensor, params: GeomParam
     pen_pairs = torch.relu(-d_pen).sum() / (t.n * scale)
     plane = t.plane_distances(world)
     pen_table = penetration_term(plane, scale).sum()
+    free_space = torch.zeros((), dtype=t.dtype)
+    if t.free_space is not None and params.lambda_free_space > 0:
+        world_fs = world
+        if params.free_space_horizontal:
+            trans_h, omega_h = t.horizontal(trans, omega)
+            world_fs = t.moved(omega_h, trans_h)[1]
+        free_space = t.free_space(world_fs)[0].sum() / (t.n * scale)
     trans_c = trans
     if not params.contact_rotates:
         # the contact term only lowers objects along gravity (see GeomParams.contact_rotates)
@@ -278,9 +326,10 @@ def _terms(t: _Tensors, x: torch.Tensor, radius: torch.Tensor, params: GeomParam
         contact = contact + contact_term(plane[t.table_children], params.top_k, scale).sum()
     anchor = anchor_term(rho, trans, params.sigma_rotation_m, params.sigma_translation_m).sum()
     total = (params.lambda_penetration * (pen_pairs + pen_table)
-             + params.lambda_contact * contact + params.lambda_anchor * anchor)
+             + params.lambda_contact * contact + params.lambda_anchor * anchor
+             + params.lambda_free_space * free_space)
     return {"total": total, "penetration_pairs": pen_pairs, "penetration_table": pen_table,
-            "contact": contact, "anchor": anchor}
+            "contact": contact, "anchor": anchor, "free_space": free_space}
 
 
 def measure(problem: GeomProblem, omega: np.ndarray | None = None,
@@ -293,6 +342,22 @@ def measure(problem: GeomProblem, omega: np.ndarray | None = None,
     tr = torch.zeros((m, 3), dtype=t.dtype) if trans is None else torch.as_tensor(trans, dtype=t.dtype)
     t.cull(om, tr, 0.0)
     return _measure(t, om, tr)
+
+
+def free_space_shares(problem: GeomProblem, params: GeomParams = GeomParams(),
+                      omega: np.ndarray | None = None, trans: np.ndarray | None = None
+                      ) -> list[float] | None:
+    """(M,) share of each object's samples in space the camera saw empty (None without a view)."""
+    if problem.view is None:
+        return None
+    t = _Tensors(problem, params=params)
+    m = len(problem.ids)
+    om = torch.zeros((m, 3), dtype=t.dtype) if omega is None else torch.as_tensor(omega, dtype=t.dtype)
+    tr = torch.zeros((m, 3), dtype=t.dtype) if trans is None else torch.as_tensor(trans, dtype=t.dtype)
+    with torch.no_grad():
+        _, world = t.moved(om, tr)
+        violating = t.free_space(world)[1]
+    return [float(x) for x in violating.to(t.dtype).mean(dim=1)]
 
 
 def _measure(t: _Tensors, om: torch.Tensor, tr: torch.Tensor) -> dict[str, float]:
@@ -337,7 +402,7 @@ def optimise_poses(problem: GeomProblem, params: GeomParams = GeomParams(),
 
 def _optimise(problem: GeomProblem, params: GeomParams, progress: ProgressFn) -> GeomResult:
     t0 = time.perf_counter()
-    t = _Tensors(problem)
+    t = _Tensors(problem, params=params)
     m = len(problem.ids)
     radius = torch.as_tensor(object_radii(problem), dtype=t.dtype)[:, None]
     x = torch.zeros((m, 6), dtype=t.dtype, requires_grad=True)
@@ -347,7 +412,7 @@ def _optimise(problem: GeomProblem, params: GeomParams, progress: ProgressFn) ->
     step_scale = torch.tensor([1.0, 1.0, 1.0] + [params.rotation_step_ratio] * 3, dtype=t.dtype)
     history: dict[str, list[float]] = {k: [] for k in
                                        ("total", "penetration_pairs", "penetration_table",
-                                        "contact", "anchor", "lr_m")}
+                                        "contact", "anchor", "free_space", "lr_m")}
     best = (math.inf, 0, np.zeros((m, 6)))
     converged = False
     it = 0
@@ -377,7 +442,8 @@ def _optimise(problem: GeomProblem, params: GeomParams, progress: ProgressFn) ->
             xd = x.detach()
             state = _measure(t, xd[:, 3:] / radius, xd[:, :3])
             if (max(state["max_penetration_pairs_m"], state["max_penetration_table_m"])
-                    <= params.stop_penetration_m and state["max_support_gap_m"] <= params.stop_gap_m):
+                    <= params.stop_penetration_m and state["max_support_gap_m"] <= params.stop_gap_m
+                    and history["free_space"][-1] <= params.stop_free_space):
                 converged = True
                 break
         if it + 1 >= params.min_iterations and it >= params.patience:
@@ -398,4 +464,6 @@ def _optimise(problem: GeomProblem, params: GeomParams, progress: ProgressFn) ->
     return GeomResult(world_from_object=poses, omega=om, translation_m=tr, history=history,
                       iterations=it + 1, converged=converged, best_iteration=best_it,
                       seconds=time.perf_counter() - t0, before=measure(problem),
-                      after=measure(problem, om, tr))
+                      after=measure(problem, om, tr),
+                      free_space_before=free_space_shares(problem, params),
+                      free_space_after=free_space_shares(problem, params, om, tr))

@@ -17,15 +17,17 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from r2s.diagnose.model import corrected_state
-from r2s.errors import StageError
+from r2s.diagnose.model import corrected_input, corrected_state
+from r2s.errors import InputError, StageError
 from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.mass_properties import mass_properties
 from r2s.io.export_writer import ExportBody, write_export
+from r2s.io.input_scene import load_input
 from r2s.io.mesh_io import load_mesh, welded
 from r2s.io.paths import ScenePaths
 from r2s.io.scene_json import read_gt_scene
 from r2s.io.state import read_state
+from r2s.metrics.observation_check import FlagTolerances, check_observation
 from r2s.stages.base import StageContext, StageOptions, StageSpec
 from r2s.stages.manifest import Manifest
 from r2s.stages.select import latest_state_stage
@@ -40,6 +42,21 @@ class Options(StageOptions):
     convex_threshold: float = Field(0.05, gt=0, description="CoACD concavity threshold.")
     max_convex_pieces: int = Field(64, ge=1, description="Most convex pieces per object.")
     restitution: float = Field(0.0, ge=0, le=1, description="Restitution of every body.")
+    observation: bool = Field(True, description="Measure each object against the input view "
+                                                "and write its 'observation' block (IoU, UCD, "
+                                                "displacement, flag) into scene.json.")
+    flag_displacement_m: float = Field(0.02, gt=0, description="Flag an object whose mesh "
+                                       "centre is farther than this from its init pose, m.")
+    flag_displacement_deg: float = Field(15.0, gt=0, description="... or that turned more "
+                                         "than this from its init pose, degrees.")
+    flag_min_iou: float = Field(0.5, ge=0, le=1, description="... or whose silhouette IoU is "
+                                "below this (masks of at least 1000 px).")
+    flag_max_free_space: float = Field(0.5, ge=0, description="... or that fills more space "
+                                       "the camera saw empty than this share of its mask.")
+
+    def tolerances(self) -> FlagTolerances:
+        return FlagTolerances(self.flag_displacement_m, self.flag_displacement_deg,
+                              self.flag_min_iou, self.flag_max_free_space)
 
 
 def _resolve_source(paths: ScenePaths, options: Options, manifest: Manifest) -> str:
@@ -55,7 +72,11 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
         source = _resolve_source(paths, options, manifest)
     except StageError:
         return []
-    return [paths.gt] if source == "gt" else [paths.stage_dir(source)]
+    found = [paths.gt] if source == "gt" else [paths.stage_dir(source)]
+    if options.observation:
+        found += [paths.stage_dir("init"), paths.camera, paths.depth_png, paths.depth_npy,
+                  paths.masks]
+    return found
 
 
 def _bodies_from_gt(paths: ScenePaths) -> tuple[list, dict, list[dict]]:
@@ -89,6 +110,37 @@ def _scalar(v: object) -> bool:
     return isinstance(v, (int, float, str, bool)) or v is None
 
 
+OBSERVATION_FLAG_KEY = "observation_flag"
+"""Per-object key of a state: why an earlier stage (physopt) flagged the object."""
+
+
+def _observation(paths: ScenePaths, bodies: list[ExportBody], opt: Options, model: dict
+                 ) -> tuple[dict[int, dict], list[str], dict]:
+    """Per-object ``observation`` blocks, warning lines and a scene summary (empty without
+    an input view)."""
+    try:
+        view = corrected_input(load_input(paths.root), model)
+    except InputError as exc:
+        return {}, [f"no observation check: {exc}"], {}
+    init_poses = None
+    if (paths.stage_dir("init") / "state.json").is_file():
+        init = corrected_state(read_state(paths.stage_dir("init")), model)
+        init_poses = {o.id: o.pose for o in init.objects}
+    earlier = {b.id: str(b.extra.pop(OBSERVATION_FLAG_KEY)) for b in bodies
+               if b.extra.get(OBSERVATION_FLAG_KEY)}
+    for b in bodies:
+        b.extra.pop(OBSERVATION_FLAG_KEY, None)
+    meshes = [b.visual_mesh.copy().apply_transform(np.asarray(b.world_from_object)) for b in bodies]
+    check = check_observation(
+        meshes, [b.id for b in bodies], view.camera.K, view.camera.world_from_camera,
+        view.depth_m, view.masks, {b.id: np.asarray(b.world_from_object) for b in bodies},
+        init_poses, {b.id: np.asarray(b.visual_mesh.centroid) for b in bodies},
+        opt.tolerances(), earlier)
+    summary = {k: None if v is None else round(float(v), 4)
+               for k, v in check.scene.summary().items()}
+    return check.blocks, check.warnings, summary
+
+
 def run(ctx: StageContext) -> dict:
     paths, opt = ctx.paths, ctx.options
     source = _resolve_source(paths, opt, ctx.manifest)
@@ -119,10 +171,26 @@ def run(ctx: StageContext) -> dict:
             extra=item["extra"],
         ))
     support.setdefault("friction", opt.default_friction)
+    warnings: list[str] = []
+    observed: dict = {}
+    if opt.observation:
+        ctx.progress("observation check", 0.95)
+        blocks, warnings, observed = _observation(paths, bodies, opt, ctx.manifest.model)
+        for b in bodies:
+            if b.id in blocks:
+                b.extra["observation"] = blocks[b.id]
     write_export(ctx.out_dir, gravity, support, bodies)
     ctx.progress("done", 1.0)
-    return {"source": source, "objects": len(bodies),
-            "collision_pieces": int(sum(len(b.collision_pieces) for b in bodies))}
+    summary = {"source": source, "objects": len(bodies),
+               "collision_pieces": int(sum(len(b.collision_pieces) for b in bodies))}
+    if opt.observation:
+        summary.update(flagged_objects=sum(bool(b.extra.get("observation", {}).get("flagged"))
+                                           for b in bodies),
+                       silhouette_iou=observed.get("silhouette_iou"),
+                       ucd_mm=observed.get("ucd_mm"),
+                       free_space_violation=observed.get("free_space_violation"),
+                       warnings=warnings)
+    return summary
 
 
-STAGE = StageSpec("export", Options, inputs, run, uses_model=frozenset({"state"}))
+STAGE = StageSpec("export", Options, inputs, run, uses_model=frozenset({"state", "input"}))
