@@ -18,7 +18,7 @@ import numpy as np
 from pydantic import Field
 
 from r2s.diagnose.model import corrected_input, corrected_state
-from r2s.errors import InputError, StageError
+from r2s.errors import StageError
 from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.mass_properties import mass_properties
 from r2s.io.export_writer import ExportBody, write_export
@@ -28,6 +28,7 @@ from r2s.io.paths import ScenePaths
 from r2s.io.scene_json import read_gt_scene
 from r2s.io.state import read_state
 from r2s.metrics.observation_check import FlagTolerances, check_observation
+from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY
 from r2s.stages.base import StageContext, StageOptions, StageSpec
 from r2s.stages.manifest import Manifest
 from r2s.stages.select import latest_state_stage
@@ -110,18 +111,13 @@ def _scalar(v: object) -> bool:
     return isinstance(v, (int, float, str, bool)) or v is None
 
 
-OBSERVATION_FLAG_KEY = "observation_flag"
-"""Per-object key of a state: why an earlier stage (physopt) flagged the object."""
-
-
 def _observation(paths: ScenePaths, bodies: list[ExportBody], opt: Options, model: dict
                  ) -> tuple[dict[int, dict], list[str], dict]:
-    """Per-object ``observation`` blocks, warning lines and a scene summary (empty without
-    an input view)."""
-    try:
-        view = corrected_input(load_input(paths.root), model)
-    except InputError as exc:
-        return {}, [f"no observation check: {exc}"], {}
+    """Per-object ``observation`` blocks, warning lines and a scene summary (all empty for
+    a scene without input/, e.g. a ground truth exported by hand)."""
+    if not paths.input.is_dir():
+        return {}, [], {}
+    view = corrected_input(load_input(paths.root), model)
     init_poses = None
     if (paths.stage_dir("init") / "state.json").is_file():
         init = corrected_state(read_state(paths.stage_dir("init")), model)
