@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from PIL import Image
 
 from helpers_init import SynthObject, pose, write_input_scene
 from helpers_state import StateObj, write_init_state
@@ -85,3 +86,22 @@ def test_displacement_flags_on_rotation():
                                      {1: np.zeros(3), 2: np.zeros(3)}, 0.02, 15.0)
     assert disp[1][1] == pytest.approx(20.0)
     assert "turned 20 deg" in flags[1] and 2 not in flags
+
+
+def test_evaluate_reports_the_observation_metrics(tmp_path):
+    from r2s.stages.evaluate import STAGE as EVALUATE
+
+    root = _scene(tmp_path / "s", 0.035)
+    block, _ = _block(root)
+    result = run_stage(EVALUATE, root)
+    metrics = json.loads((root / "evaluate" / "metrics.json").read_text())
+    assert result.summary["silhouette_iou"] == pytest.approx(block["iou"], abs=1e-4)
+    assert metrics["free_space_violation"] == pytest.approx(block["free_space_violation"], abs=1e-4)
+    assert metrics["ucd_mm"] == pytest.approx(block["ucd_mm"], abs=1e-3)
+    assert metrics["flagged_objects"] == 1
+    obj = metrics["objects"][0]
+    assert obj["displacement_m"] == pytest.approx(0.035, abs=1e-5) and obj["flagged"] is True
+    masks = np.asarray(Image.open(root / "input" / "masks.png"))
+    assert obj["mask_px"] == int((masks == 1).sum())
+    assert obj["free_space_px"] == pytest.approx(obj["free_space_violation"] * obj["mask_px"])
+    assert (root / "evaluate" / "observation.png").is_file()

@@ -39,6 +39,16 @@ FREE_SPACE_MARGIN_M = 0.015
 """A rendered surface must be at least this far in front of the observed depth."""
 LARGE_MASK_PX = 1000
 """The worst-object IoU of a scene is taken over objects with at least this many mask px."""
+PICTURE_PALETTE = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189),
+                   (140, 86, 75), (227, 119, 194), (188, 189, 34), (23, 190, 207),
+                   (127, 127, 127), (255, 255, 255))
+"""Object colours of :func:`observation_picture` (``id % 10``): no red, which marks violations."""
+
+
+def picture_colour(obj_id: int) -> tuple[float, float, float]:
+    """RGB in [0, 1] of an object in :func:`observation_picture`."""
+    r, g, b = PICTURE_PALETTE[int(obj_id) % len(PICTURE_PALETTE)]
+    return r / 255.0, g / 255.0, b / 255.0
 
 
 @dataclass(frozen=True)

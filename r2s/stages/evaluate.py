@@ -42,14 +42,15 @@ from r2s.io.paths import ScenePaths
 from r2s.io.scene_json import ExportObject, GtScene, read_gt_scene
 from r2s.metrics.geometry import (centroid_error_mm, posed, rotation_error_deg, surface_metrics,
                                   volumetric_iou)
-from r2s.metrics.observation import SceneObservation, observation_picture, observe_scene
+from r2s.metrics.observation import (SceneObservation, observation_picture, observe_scene,
+                                     picture_colour)
 from r2s.metrics.penetration import (PYBULLET_MESH_MARGIN_M, SUPPORT_ID, PenetrationMetrics,
                                      penetration_metrics, scene_distances)
 from r2s.metrics.rendering import render_scene_rgb, rendering_metrics, side_by_side_png
 from r2s.metrics.stability import object_stability, scene_stability
 from r2s.sim.pybullet_bodies import connect_direct
 from r2s.sim.pybullet_scene import LoadedScene, load_export_scene
-from r2s.sim.render import colour_bodies, colour_of, render_rgb, scaled_intrinsics, side_by_side
+from r2s.sim.render import colour_bodies, render_rgb, scaled_intrinsics, side_by_side
 from r2s.sim.rollout import Trajectory, rollout
 from r2s.stages.base import StageContext, StageOptions, StageSpec
 from r2s.stages.manifest import Manifest
@@ -132,8 +133,28 @@ def _observation(paths: ScenePaths, export_objects: list, model: dict
                f"violation {_fmt_or_dash(summary['free_space_violation'])} (red)  |  UCD "
                f"{_fmt_or_dash(summary['ucd_mm'], 1)} mm")
     picture = observation_picture(view.rgb, scene.rendered.ids, scene.violation_map, view.masks,
-                                  {i: colour_of(i)[:3] for i in ids}, caption)
+                                  {i: picture_colour(i) for i in ids}, caption)
     return scene, picture, ""
+
+
+def _add_observation(objects: list[dict], export_objects: list,
+                     observed: Optional[SceneObservation]) -> dict:
+    """Add the observation metrics to each object's entry; return the scene-level ones."""
+    flags = [bool(((o.model_extra or {}).get("observation") or {}).get("flagged"))
+             for o in export_objects]
+    for k, (entry, flagged) in enumerate(zip(objects, flags)):
+        per = observed.objects[k] if observed is not None else None
+        entry.update({key: None if per is None else getattr(per, attr) for key, attr in (
+            ("silhouette_iou", "iou"), ("ucd_mm", "ucd_mm"),
+            ("free_space_violation", "free_space_violation"), ("free_space_px", "free_space_px"),
+            ("mask_px", "mask_px"), ("displacement_m", "displacement_m"),
+            ("displacement_deg", "displacement_deg"))})
+        entry["flagged"] = flagged
+    scene = observed.summary() if observed is not None else {
+        k: None for k in ("silhouette_iou", "min_silhouette_iou", "free_space_violation",
+                          "ucd_mm", "max_displacement_m", "max_displacement_deg")}
+    scene["flagged_objects"] = sum(flags)
+    return scene
 
 
 def _fmt_or_dash(value: Optional[float], digits: int = 3) -> str:
@@ -294,20 +315,8 @@ def run(ctx: StageContext) -> dict:
     scene.update({k: rendering[k] for k in ("psnr", "ssim", "lpips")})
     progress("observation metrics", 0.98)
     observed, observation_image, observation_reason = _observation(paths, export_objects,
-                                                         ctx.manifest.model)
-    flags = [bool(((o.model_extra or {}).get("observation") or {}).get("flagged"))
-             for o in export_objects]
-    scene.update(observed.summary() if observed is not None else
-                 {k: None for k in SCENE_KEYS if k not in scene})
-    scene["flagged_objects"] = sum(flags)
-    for k, (entry, flagged) in enumerate(zip(objects, flags)):
-        per = observed.objects[k] if observed is not None else None
-        entry.update({key: None if per is None else getattr(per, attr) for key, attr in (
-            ("silhouette_iou", "iou"), ("ucd_mm", "ucd_mm"),
-            ("free_space_violation", "free_space_violation"), ("free_space_px", "free_space_px"),
-            ("mask_px", "mask_px"), ("displacement_m", "displacement_m"),
-            ("displacement_deg", "displacement_deg"))})
-        entry["flagged"] = flagged
+                                                                   ctx.manifest.model)
+    scene.update(_add_observation(objects, export_objects, observed))
     scene = {key: _finite_or_none(scene[key]) for key in SCENE_KEYS}
 
     export_ids = {o.id for o in export_objects}
