@@ -9,7 +9,10 @@ L_geom = lambda_pen * sum over pair directions of penetration(a's samples in b's
 
 The free-space term (:mod:`r2s.geomopt.free_space`, only when the problem carries an
 observed view) keeps each object where the camera saw it: samples in space the camera saw
-empty are pulled sideways towards the object's mask.
+empty are pulled sideways towards the object's mask. By default it acts in a second pass
+(``free_space_iterations``) after the optimisation above has run without it: objects then
+only slide across gravity and turn about it, and the pass's result is kept only when it
+lowers the full loss, so heights, tilts and contacts stay as the first pass left them.
 
 Penetration pairs are every support pair and every proximity pair, in both directions.
 Terms follow the paper (:mod:`r2s.geomopt.losses`); the choices that make them behave:
@@ -35,7 +38,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -73,6 +76,9 @@ class GeomParams:
     free_space_margin_m: float = 0.015
     """A sample violates free space when the observed depth at its pixel is at least this
     far behind it and the pixel is farther than ``free_space_band_px`` from its mask."""
+    free_space_iterations: int = 100
+    """Iterations of the pass after the optimisation where objects only slide across
+    gravity and turn about it (see :func:`_across_gravity_pass`; 0: none)."""
     free_space_horizontal: bool = True
     """The free-space term moves objects only across gravity and turns them only about it:
     it does not tilt them off their supports (their height and tilt answer to contact)."""
@@ -400,9 +406,57 @@ def optimise_poses(problem: GeomProblem, params: GeomParams = GeomParams(),
         torch.set_num_threads(threads)
 
 
+def _across_gravity_pass(t: _Tensors, x0: np.ndarray, value0: float, radius: torch.Tensor,
+                         params: GeomParams, history: dict[str, list[float]]) -> np.ndarray:
+    """Second pass: the same loss, but objects only slide across gravity and turn about it.
+
+    Objects resting exactly on their supports feel the contact term's constant pull down
+    and bounce on the first steps of the full optimisation, whose best iterate is then
+    often its start: the free-space term never acts. Height and tilt are settled by then,
+    so this pass freezes them (the gradient is projected on moves across gravity and turns
+    about it) and lets the free-space, penetration and anchor terms place the objects.
+    Returns the better of ``x0`` (total ``value0``) and this pass's best iterate, (M, 6).
+    """
+    up = t.up
+    keep = torch.zeros((6, 6), dtype=t.dtype)
+    keep[:3, :3] = torch.eye(3, dtype=t.dtype) - torch.outer(up, up)
+    keep[3:, 3:] = torch.outer(up, up)
+    x = torch.as_tensor(x0, dtype=t.dtype).clone().requires_grad_(True)
+    mom = torch.zeros_like(x)
+    sq = torch.zeros((x.shape[0], 1), dtype=t.dtype)
+    beta1, beta2, eps = params.beta1, params.beta2, 1e-12
+    step_scale = torch.tensor([1.0, 1.0, 1.0] + [params.rotation_step_ratio] * 3, dtype=t.dtype)
+    best = (value0, x0)
+    n = params.free_space_iterations
+    for it in range(n):
+        lr = params.lr_translation_m * params.lr_final_ratio ** (it / max(1, n - 1))
+        if it % params.recull_every == 0:
+            t.cull(x.detach()[:, 3:] / radius, x.detach()[:, :3],
+                   0.005 + 2.0 * params.recull_every * lr)
+        x.grad = None
+        terms = _terms(t, x, radius, params)
+        terms["total"].backward()
+        value = float(terms["total"].detach())
+        history.setdefault("free_space_pass", []).append(value)
+        if value < best[0]:
+            best = (value, x.detach().numpy().copy())
+        with torch.no_grad():
+            g = x.grad @ keep  # keep is symmetric: projects each object's 6-vector
+            mom.mul_(beta1).add_(g, alpha=1 - beta1)
+            sq.mul_(beta2).add_((g * g).sum(dim=1, keepdim=True), alpha=1 - beta2)
+            m_hat = mom / (1 - beta1 ** (it + 1))
+            v_hat = sq / (1 - beta2 ** (it + 1))
+            x.sub_(lr * step_scale * m_hat / (v_hat.sqrt() + eps))
+    return best[1]
+
+
 def _optimise(problem: GeomProblem, params: GeomParams, progress: ProgressFn) -> GeomResult:
     t0 = time.perf_counter()
     t = _Tensors(problem, params=params)
+    observed = t.free_space is not None and params.lambda_free_space > 0
+    two_pass = observed and params.free_space_iterations > 0
+    # with the second pass, the first is the optimisation without the view (module doc)
+    first = replace(params, lambda_free_space=0.0) if two_pass else params
     m = len(problem.ids)
     radius = torch.as_tensor(object_radii(problem), dtype=t.dtype)[:, None]
     x = torch.zeros((m, 6), dtype=t.dtype, requires_grad=True)
@@ -423,7 +477,7 @@ def _optimise(problem: GeomProblem, params: GeomParams, progress: ProgressFn) ->
             t.cull(x.detach()[:, 3:] / radius, x.detach()[:, :3], margin)
         if x.grad is not None:
             x.grad = None
-        terms = _terms(t, x, radius, params)
+        terms = _terms(t, x, radius, first)
         terms["total"].backward()
         value = float(terms["total"].detach())
         for k, v in terms.items():
@@ -455,10 +509,17 @@ def _optimise(problem: GeomProblem, params: GeomParams, progress: ProgressFn) ->
         if it % 10 == 0:
             progress(f"geometry optimisation: loss {value:.3g}", it / params.iterations)
     with torch.no_grad():  # the last step has not been scored yet
-        final = float(_terms(t, x, radius, params)["total"])
-    _, best_it, xb = best
-    if final < best[0]:
-        best_it, xb = it + 1, x.detach().numpy().copy()
+        final = float(_terms(t, x, radius, first)["total"])
+    best_value, best_it, xb = best
+    if final < best_value:
+        best_value, best_it, xb = final, it + 1, x.detach().numpy().copy()
+    if two_pass:
+        with torch.no_grad():
+            t.cull(torch.as_tensor(xb[:, 3:], dtype=t.dtype) / radius,
+                   torch.as_tensor(xb[:, :3], dtype=t.dtype), 0.0)
+            best_value = float(_terms(t, torch.as_tensor(xb, dtype=t.dtype), radius,
+                                      params)["total"])
+        xb = _across_gravity_pass(t, xb, best_value, radius, params, history)
     tr, om = xb[:, :3], xb[:, 3:] / radius.numpy()
     poses = updated_poses(problem.init_world_from_object, problem.centres_world_m, om, tr)
     return GeomResult(world_from_object=poses, omega=om, translation_m=tr, history=history,
