@@ -18,7 +18,7 @@ from helpers_init import SynthObject, pose, write_input_scene
 from helpers_state import StateObj, write_init_state
 from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, displacement_flags
 from r2s.io.state import read_state, write_state
-from r2s.stages.base import run_stage
+from r2s.runner.base import run_stage
 from r2s.stages.export import STAGE as EXPORT, Options as ExportOptions
 
 CUBE = 0.06

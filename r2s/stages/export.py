@@ -5,7 +5,7 @@ It reads the latest state stage that has run (``source=auto``: texture > physopt
 the generator). Mass is volume x density where no stage estimated it; COM is the shape's
 centre of mass where none was estimated; collision geometry is a convex decomposition.
 A state is exported as the scene's model corrects it (COM shifts, friction, a tilted table
-kept by ``r2s diagnose --set apply=true``: :func:`r2s.diagnose.model.corrected_state`);
+kept by ``r2s diagnose --set apply=true``: :func:`r2s.scene_model.corrected_state`);
 the ground truth is exported as it is.
 """
 
@@ -17,32 +17,26 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from r2s.diagnose.model import corrected_input, corrected_state
+from r2s.scene_model import corrected_input, corrected_state
 from r2s.errors import StageError
-from r2s.geometry.convex_cache import cached_convex_decomposition
-from r2s.geometry.mass_properties import mass_properties
-from r2s.io.export_writer import ExportBody, write_export
 from r2s.io.input_scene import load_input
-from r2s.io.mesh_io import load_mesh, welded
+from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import ScenePaths
-from r2s.io.scene_json import read_gt_scene
 from r2s.io.state import read_state
 from r2s.metrics.observation_check import FlagTolerances, check_observation
 from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY
-from r2s.stages.base import StageContext, StageOptions, StageSpec
-from r2s.stages.manifest import Manifest
-from r2s.stages.select import latest_state_stage
+from r2s.runner.base import StageContext, StageOptions, StageSpec
+from r2s.io.manifest import Manifest
+from r2s.io.latest_state import latest_state_stage
+from r2s.sim.export_scene import BodyParams, ObjectItem, build_and_write, gt_items
 
 
-class Options(StageOptions):
+class Options(StageOptions, BodyParams):
+    """The body parameters (:class:`r2s.sim.export_scene.BodyParams`) and the source."""
+
     source: Literal["auto", "init", "geomopt", "physopt", "texture", "gt"] = Field(
         "auto", description="Which result to export: the latest stage that ran, a named "
                             "stage, or gt (the ground truth, for judging the judge).")
-    density_kg_m3: float = Field(600.0, gt=0, description="Density where no mass is estimated.")
-    default_friction: float = Field(0.8, gt=0, description="Body friction where none is estimated.")
-    convex_threshold: float = Field(0.05, gt=0, description="CoACD concavity threshold.")
-    max_convex_pieces: int = Field(64, ge=1, description="Most convex pieces per object.")
-    restitution: float = Field(0.0, ge=0, le=1, description="Restitution of every body.")
     observation: bool = Field(True, description="Measure each object against the input view "
                                                 "and write its 'observation' block (IoU, UCD, "
                                                 "displacement, flag) into scene.json.")
@@ -80,30 +74,20 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
     return found
 
 
-def _bodies_from_gt(paths: ScenePaths) -> tuple[list, dict, list[dict]]:
-    gt = read_gt_scene(paths.gt_scene)
-    items = []
-    for obj in gt.objects:
-        items.append(dict(id=obj.id, label=obj.label, mesh_path=paths.gt / obj.mesh,
-                          pose=np.asarray(obj.world_from_object), mass_kg=obj.mass_kg,
-                          com=np.asarray(obj.com_in_object), friction=obj.friction,
-                          extra={"source": "gt"}))
-    return gt.gravity, gt.support.model_dump(), items
-
-
 def _bodies_from_state(paths: ScenePaths, stage: str, model: dict
-                       ) -> tuple[list, dict, list[dict]]:
+                       ) -> tuple[list, dict, list[ObjectItem]]:
     state = corrected_state(read_state(paths.stage_dir(stage)), model)
     items = []
     known = set(type(state.objects[0]).model_fields) if state.objects else set()
     for obj in state.objects:
         extra = {k: v for k, v in obj.model_dump().items() if k not in known}
-        items.append(dict(id=obj.id, label=obj.label, mesh_path=paths.stage_dir(stage) / obj.mesh,
-                          pose=obj.pose, mass_kg=obj.mass_kg,
-                          com=None if obj.com_in_object is None else np.asarray(obj.com_in_object),
-                          friction=obj.friction, restitution=obj.restitution,
-                          extra={"source": obj.source, "stage": stage,
-                                 **{k: v for k, v in extra.items() if _scalar(v)}}))
+        items.append(ObjectItem(
+            id=obj.id, label=obj.label, mesh_path=paths.stage_dir(stage) / obj.mesh,
+            pose=obj.pose, mass_kg=obj.mass_kg,
+            com=None if obj.com_in_object is None else np.asarray(obj.com_in_object),
+            friction=obj.friction, restitution=obj.restitution,
+            extra={"source": obj.source, "stage": stage,
+                   **{k: v for k, v in extra.items() if _scalar(v)}}))
     return state.gravity, state.support.model_dump(), items
 
 
@@ -111,10 +95,11 @@ def _scalar(v: object) -> bool:
     return isinstance(v, (int, float, str, bool)) or v is None
 
 
-def _observation(paths: ScenePaths, bodies: list[ExportBody], opt: Options, model: dict
+def _observation(paths: ScenePaths, items: list[ObjectItem], opt: Options, model: dict
                  ) -> tuple[dict[int, dict], list[str], dict]:
     """Per-object ``observation`` blocks, warning lines and a scene summary (all empty for
-    a scene without input/, e.g. a ground truth exported by hand)."""
+    a scene without input/, e.g. a ground truth exported by hand). Takes the flags an
+    earlier stage left in ``item.extra`` (:data:`OBSERVATION_FLAG_KEY`) out of them."""
     if not paths.input.is_dir():
         return {}, [], {}
     view = corrected_input(load_input(paths.root), model)
@@ -122,15 +107,16 @@ def _observation(paths: ScenePaths, bodies: list[ExportBody], opt: Options, mode
     if (paths.stage_dir("init") / "state.json").is_file():
         init = corrected_state(read_state(paths.stage_dir("init")), model)
         init_poses = {o.id: o.pose for o in init.objects}
-    earlier = {b.id: str(b.extra.pop(OBSERVATION_FLAG_KEY)) for b in bodies
-               if b.extra.get(OBSERVATION_FLAG_KEY)}
-    for b in bodies:
-        b.extra.pop(OBSERVATION_FLAG_KEY, None)
-    meshes = [b.visual_mesh.copy().apply_transform(np.asarray(b.world_from_object)) for b in bodies]
+    earlier = {item.id: str(item.extra[OBSERVATION_FLAG_KEY]) for item in items
+               if item.extra.get(OBSERVATION_FLAG_KEY)}
+    for item in items:
+        item.extra.pop(OBSERVATION_FLAG_KEY, None)
+    meshes = [load_mesh(item.mesh_path) for item in items]
     check = check_observation(
-        meshes, [b.id for b in bodies], view.camera.K, view.camera.world_from_camera,
-        view.depth_m, view.masks, {b.id: np.asarray(b.world_from_object) for b in bodies},
-        init_poses, {b.id: np.asarray(b.visual_mesh.centroid) for b in bodies},
+        [m.copy().apply_transform(np.asarray(item.pose)) for m, item in zip(meshes, items)],
+        [item.id for item in items], view.camera.K, view.camera.world_from_camera,
+        view.depth_m, view.masks, {item.id: np.asarray(item.pose) for item in items},
+        init_poses, {item.id: np.asarray(m.centroid) for m, item in zip(meshes, items)},
         opt.tolerances(), earlier)
     summary = {k: None if v is None else round(float(v), 4)
                for k, v in check.scene.summary().items()}
@@ -141,41 +127,19 @@ def run(ctx: StageContext) -> dict:
     paths, opt = ctx.paths, ctx.options
     source = _resolve_source(paths, opt, ctx.manifest)
     if source == "gt":
-        gravity, support, items = _bodies_from_gt(paths)
+        gravity, support, items = gt_items(paths)
     else:
         gravity, support, items = _bodies_from_state(paths, source, ctx.manifest.model)
-    cache = paths.root / ".cache" / "convex"
-    bodies = []
-    for k, item in enumerate(items):
-        ctx.progress(f"object {item['id']}: convex decomposition", k / max(len(items), 1))
-        mesh = load_mesh(item["mesh_path"])
-        geom = welded(mesh)
-        pieces = cached_convex_decomposition(geom, cache, threshold=opt.convex_threshold,
-                                             max_pieces=opt.max_convex_pieces)
-        props = mass_properties(geom, pieces, mass_kg=item["mass_kg"],
-                                density_kg_m3=opt.density_kg_m3)
-        # An estimated COM (non-uniform density) keeps the uniform body's inertia: the
-        # inertia of a non-uniform body is not observable from one image.
-        com = item["com"] if item["com"] is not None else props.com_in_object
-        inertia = props.inertia_about_com
-        bodies.append(ExportBody(
-            id=item["id"], label=item["label"], visual_mesh=mesh, collision_pieces=pieces,
-            world_from_object=item["pose"], mass_kg=props.mass_kg, com_in_object=np.asarray(com),
-            inertia_about_com=inertia,
-            friction=item["friction"] if item["friction"] is not None else opt.default_friction,
-            restitution=item.get("restitution", opt.restitution) or opt.restitution,
-            extra=item["extra"],
-        ))
-    support.setdefault("friction", opt.default_friction)
     warnings: list[str] = []
     observed: dict = {}
     if opt.observation:
-        ctx.progress("observation check", 0.95)
-        blocks, warnings, observed = _observation(paths, bodies, opt, ctx.manifest.model)
-        for b in bodies:
-            if b.id in blocks:
-                b.extra["observation"] = blocks[b.id]
-    write_export(ctx.out_dir, gravity, support, bodies)
+        ctx.progress("observation check", 0.0)
+        blocks, warnings, observed = _observation(paths, items, opt, ctx.manifest.model)
+        for item in items:
+            if item.id in blocks:
+                item.extra["observation"] = blocks[item.id]
+    bodies = build_and_write(ctx.out_dir, gravity, support, items, opt, paths.convex_cache,
+                             ctx.progress)
     ctx.progress("done", 1.0)
     summary = {"source": source, "objects": len(bodies),
                "collision_pieces": int(sum(len(b.collision_pieces) for b in bodies))}
