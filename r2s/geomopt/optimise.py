@@ -69,7 +69,7 @@ class GeomParams:
     """Scale of the rotation anchor, as the displacement of the object's farthest point."""
     top_k: int = 10
     length_scale_m: float = 1e-3
-    lambda_free_space: float = 30.0
+    lambda_free_space: float = 0.0
     """Weight of the free-space term (mean over samples of metres outside the mask band,
     over ``length_scale_m``); used only when the problem has an observed view."""
     free_space_band_px: float = 2.0

@@ -58,7 +58,7 @@ class Options(StageOptions):
     contact_rotates: bool = Field(False, description="let the contact term rotate objects and move them sideways (default: only along gravity)")
     support_vertical: bool = Field(True, description="penetration between a child and its supporter moves them along gravity only")
     seed: int = Field(0, description="seed of the surface samples")
-    lambda_free_space: float = Field(30.0, ge=0, description="weight of the free-space term: samples in space the camera saw empty are pulled towards their mask (0: off)")
+    lambda_free_space: float = Field(0.0, ge=0, description="weight of the free-space term: samples in space the camera saw empty are pulled towards their mask, in a pass after the optimisation (0: off, the default: docs/observation.md; 30 was tried)")
     free_space_band_px: float = Field(2.0, ge=0, description="pixels around an object's mask where its samples never violate free space")
     free_space_margin_m: float = Field(0.015, ge=0, description="a sample violates free space when the observed depth is at least this far behind it (m)")
 
