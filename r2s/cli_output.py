@@ -35,12 +35,18 @@ def print_results(results: Sequence[Any]) -> None:
     """The stage table, then the evaluation table when evaluate is among ``results``."""
     from r2s.console import print_table
 
+    from r2s.console import print_warning
+
     rows = []
     for r in results:
         status = "[green]ran[/green]" if r.ran else f"[dim]{r.reason}[/dim]"
-        brief = ", ".join(f"{k}={_fmt(v)}" for k, v in list(r.summary.items())[:4])
+        brief = ", ".join(f"{k}={_fmt(v)}" for k, v in list(r.summary.items())[:4]
+                          if k != "warnings")
         rows.append([r.name, status, f"{r.seconds:.1f}", brief])
     print_table("stages", ["stage", "status", "seconds", "summary"], rows)
+    for r in results:  # a stage's flagged results (e.g. physopt's objects moved off the view)
+        for warning in r.summary.get("warnings") or []:
+            print_warning(f"{r.name}: {warning}")
     for r in results:
         if r.name == "evaluate" and r.summary:
             metric_rows = [[k, _fmt(v)] for k, v in r.summary.items()
