@@ -108,13 +108,18 @@ def _torch_available() -> bool:
 def run_scene(scene: str, overrides: dict, skip: Sequence[str], threads: int) -> dict:
     """Run ``r2s run`` on one scene in this process with capped threads; never raises.
     Returns ``{"scene", "ok", "seconds", "error"}``."""
+    t0 = time.perf_counter()
+    from r2s.runner.noop import quick_up_to_date
+
+    if quick_up_to_date(Path(scene), None, list(skip), dict(overrides)) is not None:
+        # a finished scene: answered without importing torch (nothing to cap)
+        return {"scene": scene, "ok": True, "seconds": time.perf_counter() - t0, "error": ""}
     cap_threads(threads)
     import logging
 
     logging.getLogger("trimesh").setLevel(logging.ERROR)
     from r2s.runner.pipeline import run_pipeline
 
-    t0 = time.perf_counter()
     try:
         run_pipeline(Path(scene), skip=list(skip), overrides=dict(overrides))
         return {"scene": scene, "ok": True, "seconds": time.perf_counter() - t0, "error": ""}
@@ -150,7 +155,7 @@ def _run_local(scenes: list[Path], config: BatchConfig,
         error = ""
         if proc.returncode != 0:
             lines = [ln for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
-            error = lines[-1] if lines else f"exit {proc.returncode}"
+            error = lines[-1].removeprefix("error: ") if lines else f"exit {proc.returncode}"
         progress(f"{'done' if proc.returncode == 0 else 'FAILED'} {scene} ({seconds:.1f} s)")
         return SceneOutcome(scene, proc.returncode == 0, seconds, error)
 
