@@ -32,7 +32,8 @@ from PIL import Image
 from pydantic import Field
 from scipy import ndimage
 
-from r2s.errors import StageError
+from r2s.errors import InputError, StageError
+from r2s.geometry import sanity
 from r2s.geometry.camera import backproject
 from r2s.geometry.colors import color_mesh_from_image, has_appearance
 from r2s.geometry.completion import complete_from_points
@@ -164,11 +165,26 @@ def _object_points(scene: InputScene, obj_id: int, o: Options, plane: PlaneFit
     return pts, pix
 
 
+def _checked_prior(spec: ObjectSpec, pts: np.ndarray, flags: list[str]) -> trimesh.Trimesh:
+    """The prior mesh, refused when degenerate or in other units (one line naming it); a
+    size that is merely doubtful is added to ``flags``."""
+    prior = load_mesh(spec.prior_mesh)
+    problem = sanity.degenerate_prior(prior)
+    if problem is None:
+        problem, is_error = sanity.prior_size_problem(prior, pts)
+        if problem and not is_error:
+            flags.append(f"object {spec.id}: {problem}")
+            problem = None
+    if problem:
+        raise InputError(spec.prior_mesh, f"object {spec.id}: {problem}")
+    return prior
+
+
 def _register(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, plane: PlaneFit,
-              o: Options) -> tuple[trimesh.Trimesh, np.ndarray, RegistrationResult]:
+              o: Options, flags: list[str]) -> tuple[trimesh.Trimesh, np.ndarray, RegistrationResult]:
     """The prior in its object frame (recentred, scaled, coloured) and its pose."""
     cam = scene.camera
-    prior = load_mesh(spec.prior_mesh)
+    prior = _checked_prior(spec, pts, flags)
     view = view_constraint(cam.K, cam.world_from_camera, scene.depth_m, scene.masks == spec.id,
                            margin_px=o.silhouette_margin_px)
     reg_pts = voxel_downsample(pts, o.voxel_size_m)
@@ -235,6 +251,8 @@ def run(ctx: StageContext) -> dict:
     np.save(out / "support_points.npy", support.astype(np.float32))
 
     observed = {spec.id: _object_points(scene, spec.id, o, plane) for spec in scene.objects}
+    flags: list[str] = list(scene.warnings)  # probably-wrong inputs and results, one line each
+    table_extent_m = sanity.robust_extent_m(support)
     objects: list[ObjectState] = []
     posed: list[trimesh.Trimesh] = []
     rmses: list[float] = []
@@ -243,7 +261,7 @@ def run(ctx: StageContext) -> dict:
         ctx.progress(f"object {spec.id}", k / max(n, 1))
         pts, pix = observed[spec.id]
         if spec.prior_mesh is not None:
-            mesh, world_from_object, reg = _register(scene, spec, pts, plane, o)
+            mesh, world_from_object, reg = _register(scene, spec, pts, plane, o, flags)
             source, fitness, rmse, scale = "prior", reg.fitness, reg.rmse_m, reg.scale
             rmses.append(rmse)
         else:
@@ -254,6 +272,10 @@ def run(ctx: StageContext) -> dict:
             mesh_w = mesh.copy()
             mesh_w.apply_transform(world_from_object)
             fitness, rmse = surface_fit(mesh_w, pts, o.icp_inlier_m, seed=o.seed)
+        for problem in (sanity.low_fitness(float(fitness)),
+                        sanity.larger_than_table(sanity.mesh_extent_m(mesh), table_extent_m)):
+            if problem:
+                flags.append(f"object {spec.id}: {problem}")
         save_mesh(mesh, out / "meshes" / f"{spec.id}.glb")
         np.save(out / "points" / f"{spec.id}.npy", pts.astype(np.float32))
         mesh_w = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
@@ -288,6 +310,8 @@ def run(ctx: StageContext) -> dict:
         "mean_icp_rmse_mm": round(1000 * float(np.mean(finite)), 3) if finite else None,
         "min_fitness": round(min(fitnesses), 4) if fitnesses else None,
         "support_inlier_fraction": round(float(plane.inliers.mean()), 4),
+        "skipped": list(scene.skipped_ids),
+        "flags": flags,
     }
 
 
