@@ -124,6 +124,8 @@ def reference_run(tmp_path_factory) -> Path:
 
 
 def fresh_copy(src: Path, dst: Path, with_outputs: bool) -> Path:
+    """A copy of the scene; keep the folder's name (graph.png's title shows it)."""
+    assert dst.name == src.name
     if with_outputs:
         shutil.copytree(src, dst, ignore=shutil.ignore_patterns(LOCK_NAME))
     else:
@@ -400,6 +402,7 @@ def test_non_finite_state_is_never_written(tmp_path: Path):
 # ---- end to end: the real command line on a path with any characters ------------------------
 
 
+@pytest.mark.slow
 def test_unicode_path_runs_every_stage(reference_run: Path):
     assert UNICODE_DIR in str(reference_run)
     manifest = load_manifest(reference_run / "manifest.json")
@@ -410,6 +413,7 @@ def test_unicode_path_runs_every_stage(reference_run: Path):
     assert not [p for p in reference_run.iterdir() if p.name.startswith((".tmp-", ".old-"))]
 
 
+@pytest.mark.slow
 def test_timing_lives_only_in_the_manifest(reference_run: Path):
     for name in ("geomopt/loss.json", "texture/metrics.json", "evaluate/metrics.json"):
         text = (reference_run / name).read_text()
@@ -417,10 +421,11 @@ def test_timing_lives_only_in_the_manifest(reference_run: Path):
     assert load_manifest(reference_run / "manifest.json").stages["texture"].summary["seconds"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("with_gt", [False, True])
 def test_nan_pose_in_export_is_refused_by_evaluate(reference_run: Path, tmp_path: Path,
                                                    with_gt: bool):
-    scene = fresh_copy(reference_run, tmp_path / "nan scène", with_outputs=True)
+    scene = fresh_copy(reference_run, tmp_path / "nan scène" / "scene", with_outputs=True)
     if with_gt:
         shutil.copytree(scene / "export", scene / "gt")  # the export itself as ground truth
     path = scene / "export" / "scene.json"
@@ -436,11 +441,12 @@ def test_nan_pose_in_export_is_refused_by_evaluate(reference_run: Path, tmp_path
         in lines[0]
 
 
+@pytest.mark.slow
 def test_kill_9_mid_run_then_rerun(reference_run: Path, tmp_path: Path):
     """A forced run killed inside a stage leaves its scratch folder; the next plain run removes
     it, keeps every up-to-date stage and ends with byte-identical outputs (this also shows the
     stages that reran before the kill wrote the same bytes as the reference run)."""
-    scene = fresh_copy(reference_run, tmp_path / "kill", with_outputs=True)
+    scene = fresh_copy(reference_run, tmp_path / "kill" / "scene", with_outputs=True)
     before = stage_outputs(scene)
     proc = r2s_background("run", str(scene), "--force", *RUN_OPTIONS)
     deadline = time.monotonic() + 300
@@ -461,7 +467,7 @@ def test_concurrent_runs_never_corrupt_the_scene(reference_run: Path, tmp_path: 
     """Two ``r2s run`` started together and a third 3 s later (``--wait``): one runs, the
     other stops with one line naming it, the third waits and finds everything current; a
     final run changes nothing and the export equals a single run's byte for byte."""
-    scene = fresh_copy(reference_run, tmp_path / "two runs", with_outputs=False)
+    scene = fresh_copy(reference_run, tmp_path / "two runs" / "scene", with_outputs=False)
     a = r2s_background("run", str(scene), *RUN_OPTIONS)
     b = r2s_background("run", str(scene), *RUN_OPTIONS)
     time.sleep(3.0)
