@@ -51,6 +51,7 @@ def _warn(message: str) -> None:
 
 def _check_scene(scene_dir: Path) -> ScenePaths:
     paths = ScenePaths(Path(scene_dir))
+    _printed_warnings.clear()  # once per command
     for warning in load_input(paths.root).warnings:  # validates input/ up front
         _warn(warning)
     return paths
