@@ -322,6 +322,7 @@ def test_millimetre_prior_is_refused(tmp_path: Path):
     assert "millimetres" in message and not (scene / "init").exists()
 
 
+@pytest.mark.slow  # the 5x prior sends ICP into its global search
 def test_metre_prior_passes_and_a_5x_prior_is_flagged(tmp_path: Path):
     scene = write_two_boxes(tmp_path / "scene")
     add_prior(scene, trimesh.creation.box(box1_size_m()))
