@@ -226,6 +226,15 @@ def _complete(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, pix: np.ndar
     return shape.mesh, shape.world_from_object
 
 
+def _result_flags(obj_id: int, fitness: float, mesh: trimesh.Trimesh,
+                  table_extent_m: float) -> list[str]:
+    """Warnings about one object's fit: too few observed points explained, larger than
+    the visible table (see :mod:`r2s.geometry.sanity`)."""
+    problems = (sanity.low_fitness(fitness),
+                sanity.larger_than_table(sanity.mesh_extent_m(mesh), table_extent_m))
+    return [f"object {obj_id}: {p}" for p in problems if p]
+
+
 def _png_bytes(image: np.ndarray) -> bytes:
     buf = io.BytesIO()
     Image.fromarray(image).save(buf, format="PNG")
@@ -272,10 +281,7 @@ def run(ctx: StageContext) -> dict:
             mesh_w = mesh.copy()
             mesh_w.apply_transform(world_from_object)
             fitness, rmse = surface_fit(mesh_w, pts, o.icp_inlier_m, seed=o.seed)
-        for problem in (sanity.low_fitness(float(fitness)),
-                        sanity.larger_than_table(sanity.mesh_extent_m(mesh), table_extent_m)):
-            if problem:
-                flags.append(f"object {spec.id}: {problem}")
+        flags += _result_flags(spec.id, float(fitness), mesh, table_extent_m)
         save_mesh(mesh, out / "meshes" / f"{spec.id}.glb")
         np.save(out / "points" / f"{spec.id}.npy", pts.astype(np.float32))
         mesh_w = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
