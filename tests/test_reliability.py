@@ -32,8 +32,8 @@ from r2s.io.output_check import file_hashes
 from r2s.io.paths import ScenePaths
 from r2s.io.scene_lock import LOCK_NAME, SceneBusyError, SceneNotWritableError, scene_lock
 from r2s.io.state import SceneState, SupportPlane, ObjectState, write_state
-from r2s.stages.base import StageContext, StageOptions, StageSpec, run_stage, staleness
-from r2s.stages.manifest import load_manifest
+from r2s.runner.base import StageContext, StageOptions, StageSpec, run_stage, staleness
+from r2s.io.manifest import load_manifest
 
 REPO = Path(__file__).resolve().parents[1]
 UNICODE_DIR = "scène ü 桌面 test"
@@ -229,7 +229,7 @@ def test_read_only_scene_gets_one_line(tmp_path: Path, monkeypatch):
         raise OSError(30, "Read-only file system", str(path))
 
     monkeypatch.setattr(lock_module.os, "open", refuse)
-    from r2s.pipeline import run_pipeline
+    from r2s.runner.pipeline import run_pipeline
 
     with pytest.raises(SceneNotWritableError, match="not writable .read-only file system."):
         run_pipeline(scene)
@@ -304,7 +304,7 @@ def test_stale_scratch_folders_are_removed_at_start(tmp_path: Path):
 
 
 def _init(scene: Path):
-    from r2s.pipeline import run_single_stage
+    from r2s.runner.pipeline import run_single_stage
 
     return run_single_stage(scene, "init", {})
 

@@ -24,6 +24,7 @@ from r2s.errors import StageError
 from r2s.io.atomic import atomic_write_json
 from r2s.io.finite import first_non_finite
 from r2s.io.input_scene import read_json_file
+from r2s.io.paths import STATE_FILE
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 
@@ -79,7 +80,7 @@ class SceneState(BaseModel):
 
 def read_state(stage_dir: Path) -> SceneState:
     """Read ``stage_dir/state.json``; :class:`StageError` if it is missing or malformed."""
-    path = Path(stage_dir) / "state.json"
+    path = Path(stage_dir) / STATE_FILE
     if not path.is_file():
         raise StageError(f"{path}: missing; run the '{Path(stage_dir).name}' stage first")
     data = read_json_file(path)
@@ -101,4 +102,4 @@ def write_state(stage_dir: Path, state: SceneState) -> None:
     if bad:
         raise StageError(f"{Path(stage_dir).name} state: non-finite number at {bad} "
                          "(the optimisation diverged); nothing written")
-    atomic_write_json(Path(stage_dir) / "state.json", data)
+    atomic_write_json(Path(stage_dir) / STATE_FILE, data)

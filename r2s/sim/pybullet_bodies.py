@@ -16,7 +16,6 @@ import pybullet as pb
 from r2s.sim.ascii_paths import ascii_safe_paths
 
 TIME_STEP_S = 1.0 / 240.0
-PLANE_HALF_EXTENT_M = 5.0
 
 
 def connect_direct() -> int:
