@@ -135,7 +135,15 @@ def run(
                  overrides=_parse_sets(set_), wait_s=wait)
 
 
-@app.command()
+def _synth_epilog() -> Optional[str]:
+    if not (_WANTS_HELP and "synth" in sys.argv[1:]):
+        return None
+    from r2s.synth.options import set_help
+
+    return set_help()
+
+
+@app.command(epilog=_synth_epilog())
 def synth(
     out_dir: Path = typer.Argument(..., help="Scene directory to create."),
     objects: str = typer.Option("ycb", help="Object set: ycb, pybullet, mixed, or a "
@@ -150,12 +158,20 @@ def synth(
     push: bool = typer.Option(False, "--push", help="Also push one object on the ground truth "
                                                     "and write what the camera saw after it "
                                                     "(input/interaction/)."),
+    set_: Optional[List[str]] = typer.Option(
+        None, "--set", help="Synth option as key=value (repeatable), e.g. realism=realsense "
+                            "(a realistic RealSense-like capture); see the list below."),
 ) -> None:
     """Make a benchmark scene: settled clutter, rendered RGB-D and masks, priors, gt/."""
-    from r2s.synth.generate import SynthOptions, synthesize
+    from r2s.synth.options import SynthOptions, options_from_command_line
 
-    opts = SynthOptions(objects=objects, count=count, seed=seed, noise=noise,
-                        effects=_parse_sets(effect), width=width, height=height, push=push)
+    given = dict(objects=objects, count=count, seed=seed, noise=noise, width=width,
+                 height=height, push=push)
+    defaults = SynthOptions.model_fields
+    explicit = {k: v for k, v in given.items() if v != defaults[k].default}
+    explicit["effects"] = _parse_sets(effect)
+    opts = options_from_command_line(explicit, _parse_sets(set_))
+    from r2s.synth.generate import synthesize  # (imports PyBullet: after the checks)
     from r2s.console import stage_progress
 
     with stage_progress("synth") as progress:

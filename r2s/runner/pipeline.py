@@ -165,12 +165,14 @@ def _print_results(results: list[StageResult]) -> None:
     for r in results:
         status = "[green]ran[/green]" if r.ran else f"[dim]{r.reason}[/dim]"
         brief = ", ".join(f"{k}={_fmt(v)}" for k, v in list(r.summary.items())[:4]
-                          if k != "flags")
+                          if k not in ("flags", "warnings"))
         rows.append([r.name, status, f"{r.seconds:.1f}", brief])
     print_table("stages", ["stage", "status", "seconds", "summary"], rows)
     for r in results:  # probably-wrong results: one line each, also in the stage summary
         for flag in r.summary.get("flags") or []:
             _warn(flag if flag.startswith("/") else f"{r.name}: {flag}")
+        for warning in r.summary.get("warnings") or []:
+            _warn(f"{r.name}: {warning}")
     for r in results:
         if r.name == "evaluate" and r.summary:
             _print_metrics(r.summary)
