@@ -31,6 +31,8 @@ from r2s.errors import StageError
 from r2s.physopt.hierarchy import descendants, order_root_to_leaves, parents_from_graph
 from r2s.physopt.pybullet_world import (SimBody, build_world, depenetrate, drift, settle,
                                         settle_damped, world_gravity)
+from r2s.physical.provenance import (com_provenance, friction_provenance, nominal_mass,
+                                     user_entries)
 from r2s.stages.base import StageContext, StageOptions, StageSpec
 from r2s.stages.manifest import Manifest
 from r2s.stages.select import latest_state_stage
@@ -39,7 +41,10 @@ from r2s.stages.select import latest_state_stage
 class Options(StageOptions):
     source: Literal["auto", "init", "geomopt"] = Field(
         "auto", description="State to start from (auto: geomopt if it ran, else init).")
-    density_kg_m3: float = Field(600.0, gt=0, description="Nominal density for the mass prior.")
+    density_kg_m3: Optional[float] = Field(
+        None, gt=0, description="Nominal density for the mass prior (unset: by label, "
+                                "r2s/physical/density_table.py; input/objects.json's "
+                                "mass_kg or density_kg_m3 win).")
     mass_bounds: tuple[float, float] = Field(
         (0.5, 2.0), description="Mass bounds as factors of volume x density.")
     friction_bounds: tuple[float, float] = Field(
@@ -136,22 +141,42 @@ def _restrict_to_subtree(paths: ScenePaths, only: int, parents: Optional[dict[in
     log["only"] = {"object": only, "rerun": sorted(chosen)}
 
 
-def _initial_params(state: SceneState, meshes: dict, pieces: dict, opt: Options) -> dict:
+def _initial_params(state: SceneState, meshes: dict, pieces: dict, opt: Options,
+                    users: Optional[dict] = None) -> dict:
     params = {}
     for obj in state.objects:
-        nominal = mass_properties(meshes[obj.id], pieces[obj.id], density_kg_m3=opt.density_kg_m3)
+        user = (users or {}).get(obj.id)
+        volume = mass_properties(meshes[obj.id], pieces[obj.id], mass_kg=1.0).volume_m3
+        nominal_kg, mass_prov = nominal_mass(obj.label, volume, user, opt.density_kg_m3)
+        nominal = mass_properties(meshes[obj.id], pieces[obj.id], mass_kg=nominal_kg)
         mass = obj.mass_kg if obj.mass_kg is not None else nominal.mass_kg
-        lo, hi = opt.mass_bounds
+        lo, hi = (1.0, 1.0) if mass_prov["source"] == "user" else opt.mass_bounds
+        user_mu = None if user is None else user.friction
         params[obj.id] = {
             "world_from_object": obj.pose.copy(),
             "mass_kg": float(np.clip(mass, lo * nominal.mass_kg, hi * nominal.mass_kg)),
             "nominal_mass_kg": nominal.mass_kg,
             "com_in_object": (np.asarray(obj.com_in_object) if obj.com_in_object is not None
                               else nominal.com_in_object.copy()),
-            "friction": float(obj.friction if obj.friction is not None else opt.friction_init),
+            "friction": float(user_mu if user_mu is not None else obj.friction
+                              if obj.friction is not None else opt.friction_init),
+            "user_friction": user_mu,
+            "mass_provenance": mass_prov,
+            "centroid_in_object": nominal.com_in_object.copy(),
             "com_bounds": _inner_box(meshes[obj.id]),
         }
     return params
+
+
+def _provenance(p: dict, notes: list, opt: Options) -> dict:
+    """Where the physopt mass, friction and COM came from (r2s.physical.provenance)."""
+    raised = any("friction" in n and "->" in n for n in notes)
+    return {"mass": p["mass_provenance"],
+            "friction": friction_provenance(p["friction"], user=p.get("user_friction"),
+                                            initial=opt.friction_init,
+                                            bounds=tuple(opt.friction_bounds),
+                                            raised_for_stability=raised),
+            "com": com_provenance(p["com_in_object"], p["centroid_in_object"])}
 
 
 def _world_factory(params: dict, pieces: dict, state: SceneState, order: list[int], opt: Options):
@@ -280,7 +305,7 @@ def _verify_and_repair(params: dict, pieces: dict, state: SceneState, order: lis
             finally:
                 world.close()
         for i in movers:
-            if params[i]["friction"] < hi:
+            if params[i]["friction"] < hi and params[i].get("user_friction") is None:
                 log["objects"][i].append(f"round {rnd}: friction {params[i]['friction']:.2f} -> "
                                          f"{hi:.2f} (moved {result[i][0] * 1000:.1f} mm, "
                                          f"{result[i][1]:.1f} deg)")
@@ -378,7 +403,7 @@ def run(ctx: StageContext) -> dict:
         ctx.progress(f"object {o.id}: collision pieces", 0.1 * k / max(len(state.objects), 1))
         pieces[o.id] = cached_convex_decomposition(meshes[o.id], cache, opt.convex_threshold,
                                                    opt.max_convex_pieces)
-    params = _initial_params(state, meshes, pieces, opt)
+    params = _initial_params(state, meshes, pieces, opt, user_entries(paths.root))
     parents = parents_from_graph(paths.contact_graph)
     heights = {o.id: float(np.min((o.pose[:3, :3] @ meshes[o.id].vertices.T).T[:, 2]
                                   + o.pose[2, 3])) for o in state.objects}
@@ -412,7 +437,8 @@ def run(ctx: StageContext) -> dict:
         data = o.model_dump()
         data.update(mesh=f"meshes/{o.id}.glb", world_from_object=p["world_from_object"].tolist(),
                     mass_kg=p["mass_kg"], com_in_object=[float(x) for x in p["com_in_object"]],
-                    friction=p["friction"], physopt_drift_m=final[o.id][0],
+                    friction=p["friction"], provenance=_provenance(p, log["objects"][o.id], opt),
+                    physopt_drift_m=final[o.id][0],
                     physopt_drift_deg=final[o.id][1])
         objects.append(data)
     support = state.support.model_copy(update={"friction": opt.support_friction})
