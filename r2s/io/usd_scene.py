@@ -151,9 +151,11 @@ def _camera(stage, camera) -> None:
     cam.CreateFocalLengthAttr(float(focal))
     cam.CreateHorizontalApertureAttr(float(h_ap))
     cam.CreateVerticalApertureAttr(float(v_ap))
-    # principal point off the image centre: image x right = camera +x, image y down = -y
-    cam.CreateHorizontalApertureOffsetAttr(float((K[0, 2] - 0.5 * w) * h_ap / w))
-    cam.CreateVerticalApertureOffsetAttr(float(-(K[1, 2] - 0.5 * h) * v_ap / h))
+    # The principal point off the image centre moves the film window the other way: K is in
+    # pixel-centre coordinates (the image centre is at (w - 1) / 2), the window spans [0, w];
+    # image x is camera +x, image y is camera -y.
+    cam.CreateHorizontalApertureOffsetAttr(float(-(K[0, 2] + 0.5 - 0.5 * w) * h_ap / w))
+    cam.CreateVerticalApertureOffsetAttr(float((K[1, 2] + 0.5 - 0.5 * h) * v_ap / h))
     cam.CreateClippingRangeAttr(Gf.Vec2f(0.01, 100.0))
     cam.GetPrim().SetCustomDataByKey("r2s:image_size_px", Gf.Vec2i(int(w), int(h)))
 
