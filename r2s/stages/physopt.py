@@ -171,7 +171,10 @@ def _initial_params(state: SceneState, meshes: dict, pieces: dict, opt: Options,
 def _provenance(p: dict, notes: list, opt: Options) -> dict:
     """Where the physopt mass, friction and COM came from (r2s.physical.provenance)."""
     raised = any("friction" in n and "->" in n for n in notes)
-    return {"mass": p["mass_provenance"],
+    mass = p["mass_provenance"]
+    if abs(p["mass_kg"] - p["nominal_mass_kg"]) > 1e-9 * p["nominal_mass_kg"]:
+        mass = {"source": "optimised", "nominal_kg": p["nominal_mass_kg"], "prior": mass}
+    return {"mass": mass,
             "friction": friction_provenance(p["friction"], user=p.get("user_friction"),
                                             initial=opt.friction_init,
                                             bounds=tuple(opt.friction_bounds),
