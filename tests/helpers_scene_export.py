@@ -54,6 +54,7 @@ def exported_scene(root: Path) -> Path:
     (root / "gt" / "scene.json").write_text(json.dumps(scene))
     K, world_from_camera = look_at_camera([0.5, -0.4, 0.4], [0.02, -0.01, 0.05], 160, 120)
     K[0, 2] += 3.0  # principal point off the centre, to check its conversion
+    K[1, 2] -= 4.0
     write_camera(root / "input", K, world_from_camera, 160, 120)
     run_stage(EXPORT, root, ExportOptions(source="gt"))
     return root / "export"

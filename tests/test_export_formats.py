@@ -194,3 +194,43 @@ def test_urdf_visual_is_the_textured_obj(export_dir: Path):
     assert "../visual/1.obj" in urdf
     mtl = (export_dir / "visual" / "1.mtl").read_text()
     assert "map_Kd 1.png" in mtl and (export_dir / "visual" / "1.png").is_file()
+
+
+def test_mjcf_input_camera_sees_the_box_where_k_projects_it(export_dir: Path, scene: dict):
+    """Segmentation render of the visual geoms from ``input_camera``: the box's pixels
+    centre where ray casting through K puts them (within 0.5 px; the principal point is off
+    the image centre by (3, -4) px)."""
+    mujoco = pytest.importorskip("mujoco")
+    model = mujoco.MjModel.from_xml_path(str(export_dir / "scene.xml"))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    cam_json = json.loads((export_dir.parent / "input" / "camera.json").read_text())
+    w, h = cam_json["width"], cam_json["height"]
+    try:
+        renderer = mujoco.Renderer(model, h, w)
+    except Exception as exc:  # no OpenGL context on this machine
+        pytest.skip(f"MuJoCo cannot render here ({type(exc).__name__}: {exc})")
+    opt = mujoco.MjvOption()
+    opt.geomgroup[:] = [0, 1, 0, 0, 0, 0]
+    renderer.enable_segmentation_rendering()
+    renderer.update_scene(data, camera="input_camera", scene_option=opt)
+    seg = renderer.render()[..., 0]
+    renderer.close()
+    box_geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "visual_1")
+    vs, us = np.nonzero(seg == box_geom)
+    assert len(us) > 100
+    # the same mask by ray casting the box through K (pixel centres)
+    K, pose = np.asarray(cam_json["K"]), np.asarray(cam_json["world_from_camera"])
+    box = trimesh.creation.box([0.1, 0.1, 0.1])
+    box.apply_transform(np.asarray(scene["objects"][0]["world_from_object"]))
+    can = trimesh.creation.cylinder(radius=0.02, height=0.08, sections=24)
+    can.apply_transform(np.asarray(scene["objects"][1]["world_from_object"]))
+    uu, vv = np.meshgrid(np.arange(w), np.arange(h))
+    rays = np.stack([(uu - K[0, 2]) / K[0, 0], (vv - K[1, 2]) / K[1, 1], np.ones_like(uu, float)],
+                    -1).reshape(-1, 3) @ pose[:3, :3].T
+    origins = np.repeat(pose[None, :3, 3], len(rays), axis=0)
+    both = trimesh.util.concatenate([box, can])
+    hit_tri, hit_ray = both.ray.intersects_id(origins, rays, multiple_hits=False)
+    on_box = hit_ray[hit_tri < len(box.faces)]
+    expected = np.stack([uu.reshape(-1)[on_box], vv.reshape(-1)[on_box]], 1)
+    assert np.allclose([us.mean(), vs.mean()], expected.mean(0), atol=0.5)

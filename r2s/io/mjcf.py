@@ -48,6 +48,8 @@ NOSLIP_ITERATIONS = 10
 PAIR_MARGIN_M = 0.05
 """Pieces of two objects whose world boxes are closer than this get explicit pairs."""
 CONDIM = 3
+CAMERA_PIXEL_M = 1e-5
+"""Nominal pixel pitch of the camera's sensor (only ratios matter)."""
 OBJECT_MARGIN_M = 0.001
 """Bullet's collision margin of a convex mesh: PyBullet rests a convex body 1 mm above the
 plane and two convex bodies 2 mm apart. A MuJoCo contact with margin m comes to rest at
@@ -160,14 +162,31 @@ def build_spec(objects: Sequence[MjcfObject], gravity: Sequence[float], support:
     plane.condim = CONDIM
     plane.solref = list(SOLREF)
     plane.rgba = [0.55, 0.5, 0.45, 1.0]
+    spec.visual.headlight.ambient = [0.4, 0.4, 0.4]
+    spec.visual.headlight.diffuse = [0.5, 0.5, 0.5]
+    light = world.add_light()
+    light.name = "overhead"
+    light.type = mujoco.mjtLightType.mjLIGHT_DIRECTIONAL
+    light.pos = [float(x) for x in np.asarray(support["point"], float) + [0.0, 0.0, 2.0]]
+    light.dir = [0.0, 0.0, -1.0]
+    light.diffuse = [0.6, 0.6, 0.6]
     if camera is not None:
         cam = world.add_camera()
         cam.name = "input_camera"
         pose = np.asarray(camera.world_from_camera, dtype=float)
         cam.pos = [float(x) for x in pose[:3, 3]]
         cam.quat = _wxyz(pose[:3, :3] @ CV_TO_GL)
-        cam.fovy = camera_fovy_deg(np.asarray(camera.K), camera.height)
-        cam.resolution = [float(camera.width), float(camera.height)]
+        K = np.asarray(camera.K, dtype=float)
+        w, h = float(camera.width), float(camera.height)
+        cam.fovy = camera_fovy_deg(K, camera.height)
+        # The full pinhole model: with a sensor size MuJoCo uses focal length and principal
+        # point (pixels) instead of fovy. MuJoCo's principal point is the image centre's
+        # offset from it (measured by rendering: tests/test_export_formats.py), and K's
+        # pixel-centre coordinates put the image centre at ((w - 1) / 2, (h - 1) / 2).
+        cam.resolution = [w, h]
+        cam.sensor_size = [w * CAMERA_PIXEL_M, h * CAMERA_PIXEL_M]
+        cam.focal_pixel = [float(K[0, 0]), float(K[1, 1])]
+        cam.principal_pixel = [float(0.5 * w - 0.5 - K[0, 2]), float(0.5 * h - 0.5 - K[1, 2])]
     geom_names: dict[int, list[str]] = {}
     for obj in objects:
         oid = int(obj.id)
