@@ -234,3 +234,24 @@ def test_mjcf_input_camera_sees_the_box_where_k_projects_it(export_dir: Path, sc
     on_box = hit_ray[hit_tri < len(box.faces)]
     expected = np.stack([uu.reshape(-1)[on_box], vv.reshape(-1)[on_box]], 1)
     assert np.allclose([us.mean(), vs.mean()], expected.mean(0), atol=0.5)
+
+
+def test_pybullet_bodies_keep_every_convex_piece(tmp_path: Path):
+    """createCollisionShapeArray drops pieces past 16; add_rigid_body must keep all 27."""
+    import pybullet as pb
+    from r2s.sim.pybullet_bodies import add_rigid_body, connect_direct
+
+    files = []
+    for k in range(27):
+        piece = trimesh.creation.box([0.01, 0.01, 0.01])
+        piece.apply_translation([0.02 * k, 0.0, 0.0])
+        files.append(tmp_path / f"p{k}.obj")
+        piece.export(files[-1])
+    client = connect_direct()
+    try:
+        body = add_rigid_body(client, files, np.eye(4), 1.0, [0.26, 0.0, 0.0], 0.5)
+        lo, hi = pb.getAABB(body, -1, physicsClientId=client)
+        assert hi[0] == pytest.approx(0.527, abs=2e-3)  # the last piece's far face + margin
+        assert lo[0] == pytest.approx(-0.005, abs=3e-3)
+    finally:
+        pb.disconnect(client)
