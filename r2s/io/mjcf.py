@@ -21,7 +21,7 @@ margin reproduces that rest distance (``OBJECT_MARGIN_M``).
 
 Contact softness. PyBullet's contacts are hard and do not creep; MuJoCo's are soft, and on
 a slope a soft frictional contact slips slowly. The scene uses the stiffest contact that
-MuJoCo resolves stably (time constant 2 x timestep), an elliptic cone with impratio 10
+MuJoCo resolves stably (time constant 2 x timestep, at a 1/480 s step), an elliptic cone with impratio 10
 (less slip, MuJoCo's recommendation for elliptic cones), and noslip iterations, MuJoCo's
 post-processing that removes the remaining slip; docs/physics_parameters.md has the
 measurement.
@@ -39,8 +39,10 @@ from scipy.spatial.transform import Rotation
 
 from r2s.errors import StageError
 
-TIMESTEP_S = 1.0 / 240.0
-"""PyBullet's default step, which the judge uses."""
+TIMESTEP_S = 1.0 / 480.0
+"""Half PyBullet's 1/240 s step: MuJoCo's stiffest stable contact has a time constant of two
+steps, and Bullet's contacts are rigid, so a smaller step brings MuJoCo's contacts closer to
+Bullet's (measured: docs/physics_parameters.md)."""
 SOLREF = (2.0 * TIMESTEP_S, 1.0)
 """Contact time constant (s) and damping ratio: the stiffest MuJoCo integrates stably."""
 IMPRATIO = 10.0
