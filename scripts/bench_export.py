@@ -25,9 +25,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from r2s.io.paths import ScenePaths  # noqa: E402
-from r2s.pipeline import build_options  # noqa: E402
-from r2s.stages.base import run_stage  # noqa: E402
-from r2s.stages.registry import get_stage  # noqa: E402
+from r2s.runner.pipeline import build_options  # noqa: E402
+from r2s.runner.base import run_stage  # noqa: E402
+from r2s.runner.registry import get_stage  # noqa: E402
 
 PRIORS = {"density600": {"density_kg_m3": 600.0}, "table": {}}
 

@@ -5,9 +5,9 @@ set -euo pipefail
 VENV="${1:-.venv}"
 PYTHON="${PYTHON:-python3}"
 
-# Debian packages: open3d's import needs libusb; pyrender renders headless via OSMesa or EGL.
+# Debian packages: open3d's import needs libusb and the GL/EGL libraries.
 need=()
-for pkg in libusb-1.0-0 libgl1 libegl1 libosmesa6; do
+for pkg in libusb-1.0-0 libgl1 libegl1; do
   dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
 done
 if [ ${#need[@]} -gt 0 ]; then
@@ -21,6 +21,16 @@ if [ ${#need[@]} -gt 0 ]; then
   else
     echo "warning: apt-get not found; please install ${need[*]}" >&2
   fi
+fi
+
+# Optional: Chromium runs the test of 'r2s view' in a headless browser; that test skips
+# (saying why) when it is missing, so setup goes on if it cannot be installed.
+if ! command -v chromium >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; then
+  SUDO=""
+  [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null 2>&1 && SUDO="sudo"
+  echo "installing Debian's chromium (optional, for the viewer's browser test)"
+  { $SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium; } || \
+    echo "warning: could not install chromium; the viewer's browser test will be skipped" >&2
 fi
 
 if [ ! -x "$VENV/bin/python" ]; then

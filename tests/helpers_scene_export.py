@@ -12,7 +12,7 @@ from PIL import Image
 
 from helpers_export import look_at_camera, write_camera
 from r2s.io.mesh_io import save_mesh
-from r2s.stages.base import run_stage
+from r2s.runner.base import run_stage
 from r2s.stages.export import STAGE as EXPORT, Options as ExportOptions
 
 BOX_MASS_KG, CAN_MASS_KG = 0.5, 0.1

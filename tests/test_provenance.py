@@ -16,7 +16,7 @@ from r2s.io.paths import ScenePaths
 from r2s.physical.density_table import (DEFAULT_DENSITY_KG_M3, TABLE, YCB_MASS_KG,
                                         density_for_label)
 from r2s.physical.provenance import com_provenance, friction_provenance, nominal_mass
-from r2s.stages.base import run_stage
+from r2s.runner.base import run_stage
 from r2s.stages.export import STAGE as EXPORT, Options as ExportOptions
 
 

@@ -27,6 +27,7 @@ from r2s.io.mesh_io import save_mesh, untextured
 from r2s.io.mjcf import MjcfObject, write_mjcf
 from r2s.io.scene_glb import GlbObject, write_scene_glb
 from r2s.io.urdf import urdf_text
+from r2s.io.paths import EXPORT_SCENE_FILE
 from r2s.io.usd_scene import UsdObject, write_usd
 from r2s.io.visual_mesh import write_visual_obj
 
@@ -113,7 +114,7 @@ def write_export(out_dir: Path, gravity: Sequence[float], support: dict,
         "support": support,
         "objects": objects,
     }
-    atomic_write_json(out_dir / "scene.json", scene)
+    atomic_write_json(out_dir / EXPORT_SCENE_FILE, scene)
     write_mjcf(out_dir, mj_objects, scene["gravity"], support, camera)
     write_usd(out_dir, usd_objects, scene["gravity"], support, camera)
     write_scene_glb(out_dir, [GlbObject(int(b.id), b.visual_mesh,

@@ -38,6 +38,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from r2s.errors import StageError
+from r2s.io.atomic import atomic_write_text
+from r2s.io.paths import EXPORT_MJCF_FILE
 
 TIMESTEP_S = 1.0 / 480.0
 """Half PyBullet's 1/240 s step: MuJoCo's stiffest stable contact has a time constant of two
@@ -291,16 +293,14 @@ def write_mjcf(export_dir: Path, objects: Sequence[MjcfObject], gravity: Sequenc
     """Build, compile (the check) and write ``export_dir/scene.xml``."""
     import mujoco
 
-    from r2s.io.atomic import atomic_write_text
-
     export_dir = Path(export_dir)
     spec = build_spec(objects, gravity, support, camera)
     spec.modelfiledir = str(export_dir)
     try:
         spec.compile()
     except Exception as exc:
-        raise StageError(f"{export_dir / 'scene.xml'}: MuJoCo cannot compile the scene ({exc})"
-                         ) from None
-    path = export_dir / "scene.xml"
+        raise StageError(f"{export_dir / EXPORT_MJCF_FILE}: MuJoCo cannot compile the scene "
+                         f"({exc})") from None
+    path = export_dir / EXPORT_MJCF_FILE
     atomic_write_text(path, spec.to_xml())
     return path

@@ -42,14 +42,14 @@ from r2s.geometry.overlay import fit_overlay, render_instances
 from r2s.geometry.plane import PlaneFit, fit_plane_ransac, signed_distance
 from r2s.geometry.registration import (IcpOptions, RegistrationResult, register_prior,
                                        surface_fit, voxel_downsample)
-from r2s.diagnose.model import corrected_input
+from r2s.scene_model import corrected_input
 from r2s.io.atomic import atomic_write_bytes
 from r2s.io.input_scene import InputScene, ObjectSpec, load_input
 from r2s.io.mesh_io import load_mesh, save_mesh
 from r2s.io.paths import ScenePaths
 from r2s.io.state import DEFAULT_GRAVITY, ObjectState, SceneState, SupportPlane, write_state
-from r2s.stages.base import StageContext, StageOptions, StageSpec
-from r2s.stages.manifest import Manifest
+from r2s.runner.base import StageContext, StageOptions, StageSpec
+from r2s.io.manifest import Manifest
 
 SUPPORT_FRICTION = 0.8
 """Friction written for the support plane (no stage before physopt estimates it)."""
@@ -271,7 +271,8 @@ def run(ctx: StageContext) -> dict:
     rendered = render_instances(posed, cam.K, cam.world_from_camera, cam.width, cam.height)
     atomic_write_bytes(out / "init.png",
                        _png_bytes(fit_overlay(scene.rgb, rendered, scene.masks, scene.ids,
-                                              zoom_to_px=1000)))
+                                              zoom_to_px=1000,
+                                              labels={o.id: o.label for o in scene.objects})))
     write_state(out, SceneState(
         stage="init", gravity=list(DEFAULT_GRAVITY),
         support=SupportPlane(point=[float(v) for v in plane.point],
