@@ -93,7 +93,8 @@ def test_export_uses_objects_json_and_the_table_and_says_so(tmp_path: Path):
                      friction=None, com_in_object=[0.0, 0.0, -0.016])]
     write_init_state(tmp_path, objs)
     _objects_json(tmp_path, [{"id": 1, "mass_kg": 0.41, "friction": 0.45}])
-    run_stage(EXPORT, tmp_path, ExportOptions(source="init", default_friction=0.8))
+    run_stage(EXPORT, tmp_path, ExportOptions(source="init", default_friction=0.8,
+                                              observation=False))  # input/ has no image
     scene = json.loads((tmp_path / "export" / "scene.json").read_text())
     by_id = {o["id"]: o for o in scene["objects"]}
     assert by_id[1]["mass_kg"] == pytest.approx(0.41)
