@@ -101,6 +101,16 @@ class ObjectEntry(BaseModel):
     label: Optional[str] = None
     prior_mesh: Optional[str] = None
     world_from_prior: Optional[list[list[float]]] = None
+    mass_kg: Optional[float] = None
+    density_kg_m3: Optional[float] = None
+    friction: Optional[float] = None
+
+    @field_validator("mass_kg", "density_kg_m3", "friction")
+    @classmethod
+    def _positive(cls, v: Optional[float]) -> Optional[float]:
+        if v is not None and not (np.isfinite(v) and v > 0):
+            raise ValueError("mass_kg, density_kg_m3 and friction must be positive numbers")
+        return v
 
     @field_validator("id")
     @classmethod
