@@ -155,6 +155,18 @@ def build_spec(objects: Sequence[MjcfObject], gravity: Sequence[float], support:
     spec.option.impratio = IMPRATIO
     spec.option.noslip_iterations = NOSLIP_ITERATIONS
     mu_s = float(support.get("friction", 0.8))
+    _add_support_and_light(spec, support, mu_s)
+    if camera is not None:
+        _add_input_camera(spec, camera)
+    geom_names = {int(obj.id): _add_object(spec, obj, mu_s) for obj in objects}
+    _add_pairs(spec, objects, geom_names, mu_s)
+    return spec
+
+
+def _add_support_and_light(spec, support: dict, mu_s: float) -> None:
+    """The support plane (static, friction ``mu_s``) and an overhead directional light."""
+    import mujoco
+
     world = spec.worldbody
     plane = world.add_geom()
     plane.name = "support"
@@ -174,82 +186,96 @@ def build_spec(objects: Sequence[MjcfObject], gravity: Sequence[float], support:
     light.pos = [float(x) for x in np.asarray(support["point"], float) + [0.0, 0.0, 2.0]]
     light.dir = [0.0, 0.0, -1.0]
     light.diffuse = [0.6, 0.6, 0.6]
-    if camera is not None:
-        cam = world.add_camera()
-        cam.name = "input_camera"
-        pose = np.asarray(camera.world_from_camera, dtype=float)
-        cam.pos = [float(x) for x in pose[:3, 3]]
-        cam.quat = _wxyz(pose[:3, :3] @ CV_TO_GL)
-        K = np.asarray(camera.K, dtype=float)
-        w, h = float(camera.width), float(camera.height)
-        cam.fovy = camera_fovy_deg(K, camera.height)
-        # The full pinhole model: with a sensor size MuJoCo uses focal length and principal
-        # point (pixels) instead of fovy. MuJoCo's principal point is the image centre's
-        # offset from it (measured by rendering: tests/test_export_formats.py), and K's
-        # pixel-centre coordinates put the image centre at ((w - 1) / 2, (h - 1) / 2).
-        cam.resolution = [w, h]
-        cam.sensor_size = [w * CAMERA_PIXEL_M, h * CAMERA_PIXEL_M]
-        cam.focal_pixel = [float(K[0, 0]), float(K[1, 1])]
-        cam.principal_pixel = [float(0.5 * w - 0.5 - K[0, 2]), float(0.5 * h - 0.5 - K[1, 2])]
-    geom_names: dict[int, list[str]] = {}
-    for obj in objects:
-        oid = int(obj.id)
-        pose = np.asarray(obj.world_from_object, dtype=float)
-        body = world.add_body()
-        body.name = f"object_{oid}"
-        body.pos = [float(x) for x in pose[:3, 3]]
-        body.quat = _wxyz(pose[:3, :3])
-        body.add_freejoint()
-        moments, axes = _principal(obj.inertia_about_com)
-        body.explicitinertial = True
-        body.mass = float(obj.mass_kg)
-        body.ipos = [float(x) for x in obj.com_in_object]
-        body.iquat = _wxyz(axes)
-        body.inertia = [float(x) for x in moments]
-        mu = float(obj.friction) * mu_s
-        names = []
-        for k, rel in enumerate(obj.collision_meshes):
-            mesh = spec.add_mesh()
-            mesh.name = f"m{oid}_{k}"
-            mesh.file = rel
-            geom = body.add_geom()
-            geom.name = f"c{oid}_{k}"
-            geom.type = mujoco.mjtGeom.mjGEOM_MESH
-            geom.meshname = mesh.name
-            geom.friction = [mu, 0.0, 0.0]
-            geom.condim = CONDIM
-            geom.solref = list(SOLREF)
-            geom.margin = OBJECT_MARGIN_M
-            geom.group = 3
-            geom.rgba = [0.3, 0.6, 0.9, 0.4]
-            names.append(geom.name)
-        geom_names[oid] = names
-        if obj.visual_obj is not None:
-            vmesh = spec.add_mesh()
-            vmesh.name = f"v{oid}"
-            vmesh.file = obj.visual_obj
-            vis = body.add_geom()
-            vis.name = f"visual_{oid}"
-            vis.type = mujoco.mjtGeom.mjGEOM_MESH
-            vis.meshname = vmesh.name
-            vis.contype = 0
-            vis.conaffinity = 0
-            vis.group = 1
-            vis.mass = 0.0
-            if obj.visual_png is not None:
-                tex = spec.add_texture()
-                tex.name = f"t{oid}"
-                tex.file = obj.visual_png
-                tex.type = mujoco.mjtTexture.mjTEXTURE_2D
-                tex.colorspace = mujoco.mjtColorSpace.mjCOLORSPACE_SRGB
-                mat = spec.add_material()
-                mat.name = f"mat{oid}"
-                mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = tex.name
-                vis.material = mat.name
-            else:
-                vis.rgba = list(obj.rgba)
-    _add_pairs(spec, objects, geom_names, mu_s)
-    return spec
+
+
+def _add_input_camera(spec, camera) -> None:
+    """The input camera, ``input_camera``, with its full pinhole model."""
+    cam = spec.worldbody.add_camera()
+    cam.name = "input_camera"
+    pose = np.asarray(camera.world_from_camera, dtype=float)
+    cam.pos = [float(x) for x in pose[:3, 3]]
+    cam.quat = _wxyz(pose[:3, :3] @ CV_TO_GL)
+    K = np.asarray(camera.K, dtype=float)
+    w, h = float(camera.width), float(camera.height)
+    cam.fovy = camera_fovy_deg(K, camera.height)
+    # The full pinhole model: with a sensor size MuJoCo uses focal length and principal
+    # point (pixels) instead of fovy. MuJoCo's principal point is the image centre's
+    # offset from it (measured by rendering: tests/test_export_formats.py), and K's
+    # pixel-centre coordinates put the image centre at ((w - 1) / 2, (h - 1) / 2).
+    cam.resolution = [w, h]
+    cam.sensor_size = [w * CAMERA_PIXEL_M, h * CAMERA_PIXEL_M]
+    cam.focal_pixel = [float(K[0, 0]), float(K[1, 1])]
+    cam.principal_pixel = [float(0.5 * w - 0.5 - K[0, 2]), float(0.5 * h - 0.5 - K[1, 2])]
+
+
+def _add_object(spec, obj: MjcfObject, mu_s: float) -> list[str]:
+    """One free body: explicit inertia, convex collision geoms (group 3) and a textured
+    visual geom that does not collide (group 1). Returns the collision geoms' names."""
+    import mujoco
+
+    oid = int(obj.id)
+    pose = np.asarray(obj.world_from_object, dtype=float)
+    body = spec.worldbody.add_body()
+    body.name = f"object_{oid}"
+    body.pos = [float(x) for x in pose[:3, 3]]
+    body.quat = _wxyz(pose[:3, :3])
+    body.add_freejoint()
+    moments, axes = _principal(obj.inertia_about_com)
+    body.explicitinertial = True
+    body.mass = float(obj.mass_kg)
+    body.ipos = [float(x) for x in obj.com_in_object]
+    body.iquat = _wxyz(axes)
+    body.inertia = [float(x) for x in moments]
+    mu = float(obj.friction) * mu_s
+    names = []
+    for k, rel in enumerate(obj.collision_meshes):
+        mesh = spec.add_mesh()
+        mesh.name = f"m{oid}_{k}"
+        mesh.file = rel
+        geom = body.add_geom()
+        geom.name = f"c{oid}_{k}"
+        geom.type = mujoco.mjtGeom.mjGEOM_MESH
+        geom.meshname = mesh.name
+        geom.friction = [mu, 0.0, 0.0]
+        geom.condim = CONDIM
+        geom.solref = list(SOLREF)
+        geom.margin = OBJECT_MARGIN_M
+        geom.group = 3
+        geom.rgba = [0.3, 0.6, 0.9, 0.4]
+        names.append(geom.name)
+    if obj.visual_obj is not None:
+        _add_visual(spec, body, obj)
+    return names
+
+
+def _add_visual(spec, body, obj: MjcfObject) -> None:
+    """The visual mesh of ``obj`` on ``body``: no contacts, no mass, texture if any."""
+    import mujoco
+
+    oid = int(obj.id)
+    vmesh = spec.add_mesh()
+    vmesh.name = f"v{oid}"
+    vmesh.file = obj.visual_obj
+    vis = body.add_geom()
+    vis.name = f"visual_{oid}"
+    vis.type = mujoco.mjtGeom.mjGEOM_MESH
+    vis.meshname = vmesh.name
+    vis.contype = 0
+    vis.conaffinity = 0
+    vis.group = 1
+    vis.mass = 0.0
+    if obj.visual_png is not None:
+        tex = spec.add_texture()
+        tex.name = f"t{oid}"
+        tex.file = obj.visual_png
+        tex.type = mujoco.mjtTexture.mjTEXTURE_2D
+        tex.colorspace = mujoco.mjtColorSpace.mjCOLORSPACE_SRGB
+        mat = spec.add_material()
+        mat.name = f"mat{oid}"
+        mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = tex.name
+        vis.material = mat.name
+    else:
+        vis.rgba = list(obj.rgba)
 
 
 def _add_pair(spec, g1: str, g2: str, mu: float, margin_m: float) -> None:
