@@ -11,6 +11,13 @@ column keeps its own top.
 The solid is the zero level set of ``min(-footprint_sdf(x, y), top(x, y) - z,
 z - bottom(x, y))``, meshed by marching cubes on a padded grid, which gives a closed,
 watertight surface with vertical walls along the hull.
+
+Given the depth view (:class:`~r2s.geometry.carving.CarveView`), the solid is carved
+before meshing: every grid node the camera saw past (in front of a valid reading at a pixel
+that is not the object's own) is free space and becomes outside, so the extrusion keeps
+only what the camera could not see: behind the visible surface, behind nearer objects,
+below, in depth holes and outside the image. Pieces left with less than
+``MIN_PIECE_FRACTION`` of the largest piece's volume are dropped.
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from skimage.measure import marching_cubes
 
 from r2s.geometry.camera import transform_points
+from r2s.geometry.carving import CarveView, seen_free
 from r2s.geometry.plane import world_from_plane
 
 
@@ -40,11 +48,17 @@ class CompletedShape:
         the footprint centre at the bottom of the mesh.
     world_from_object : (4, 4) rigid.
     bottom_m : height of the object's base above the support plane (0 on the table).
+    carved_fraction : share of the extruded solid's grid nodes removed as seen free space
+        (0 without a view).
     """
 
     mesh: trimesh.Trimesh
     world_from_object: np.ndarray
     bottom_m: float
+    carved_fraction: float = 0.0
+
+
+MIN_PIECE_FRACTION = 0.1
 
 
 def footprint_sdf(hull_equations: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -127,8 +141,8 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
                          plane_normal: np.ndarray, colors: np.ndarray | None = None,
                          cell_m: float = 0.003, below_points_world: np.ndarray | None = None,
                          max_cells: int = 160, median_px: int = 3,
-                         hull_margin_m: float = 0.0, outlier_factor: float = 4.0
-                         ) -> CompletedShape:
+                         hull_margin_m: float = 0.0, outlier_factor: float = 4.0,
+                         view: CarveView | None = None) -> CompletedShape:
     """Complete a watertight mesh from one partial view of an object on a plane.
 
     Parameters
@@ -145,6 +159,7 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
     outlier_factor : points far from their neighbours (see :func:`drop_isolated`) are
         ignored, so that mixed pixels behind an edge do not stretch the footprint;
         0 keeps every point.
+    view : the depth view to carve against (see the module docstring), or None.
 
     Returns
     -------
@@ -207,6 +222,10 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
         top[:, :, None] - zs[None, None, :],
         zs[None, None, :] - bottom[:, :, None],
     ])
+    field = np.clip(field, -cell, cell)
+    carved_fraction = 0.0
+    if view is not None:
+        field, carved_fraction = _carve(field, view, world_from_pl, xs, ys, zs, cell)
     field = np.pad(field, 1, mode="constant", constant_values=-cell)
     # a node exactly on the level set makes degenerate triangles: nudge it outside
     field[np.abs(field) < 1e-6 * cell] = -1e-6 * cell
@@ -218,9 +237,8 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
         mesh.invert()
 
     # object frame: plane axes, origin at the footprint centre on the mesh's base
-    centre = np.array([*(0.5 * (hull.points[hull.vertices].min(axis=0)
-                                + hull.points[hull.vertices].max(axis=0))),
-                       float(mesh.vertices[:, 2].min())])
+    lo_m, hi_m = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    centre = np.array([*(0.5 * (lo_m[:2] + hi_m[:2])), float(lo_m[2])])
     mesh.apply_translation(-centre)
     plane_from_object = np.eye(4)
     plane_from_object[:3, 3] = centre
@@ -232,4 +250,29 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
         rgba = np.concatenate([cols[nn, :3], np.full((len(nn), 1), 255)], axis=1)
         mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=rgba.astype(np.uint8))
     return CompletedShape(mesh=mesh, world_from_object=world_from_object,
-                          bottom_m=float(centre[2]))
+                          bottom_m=float(centre[2]), carved_fraction=carved_fraction)
+
+
+def _carve(field: np.ndarray, view: CarveView, world_from_pl: np.ndarray, xs: np.ndarray,
+           ys: np.ndarray, zs: np.ndarray, cell: float) -> tuple[np.ndarray, float]:
+    """``field`` (nx, ny, nz), positive inside, with the nodes the camera saw past set
+    outside and small leftover pieces dropped; and the share of inside nodes removed.
+    When carving would leave nothing, the field is returned unchanged (share 1.0)."""
+    inside = np.argwhere(field > 0)
+    if len(inside) == 0:
+        return field, 0.0
+    nodes = np.c_[xs[inside[:, 0]], ys[inside[:, 1]], zs[inside[:, 2]]]
+    free = seen_free(view, transform_points(world_from_pl, nodes))
+    if not free.any():
+        return field, 0.0
+    out = field.copy()
+    gone = inside[free]
+    out[gone[:, 0], gone[:, 1], gone[:, 2]] = -cell
+    labels, count = ndimage.label(out > 0)
+    if count == 0:
+        return field, 1.0
+    sizes = np.bincount(labels.ravel())[1:]
+    small = np.flatnonzero(sizes < MIN_PIECE_FRACTION * sizes.max()) + 1
+    if len(small):
+        out[np.isin(labels, small)] = -cell
+    return out, 1.0 - float(np.count_nonzero(out > 0)) / len(inside)
