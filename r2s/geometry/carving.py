@@ -1,12 +1,15 @@
 """Space the camera saw through, for carving a completed shape.
 
 A point of a completed object that projects to a pixel with a valid depth reading and lies
-in front of that reading by more than a margin hides nothing the camera saw only if the
-pixel is the object's own: anywhere else the camera looked *past* it (onto the table, the
-wall, or an object behind), so it is free space and may not be material. Pixels with no
-reading (holes) and points outside the image or behind the camera are unknown: hidden
-parts may go there, as they may behind nearer objects (the reading is nearer than the
-point) and below the visible surface along the ray.
+in front of that reading by more than a margin is space the camera looked *past* (onto the
+table, the wall, an object behind, or the object's own far side, e.g. the inner walls
+behind an L-shaped block's notch): it is free and may not be material. The exception is
+the mask's uncertain rim: pixels within ``band_px`` outside the object's kept pixels and
+its own outermost ``rim_px`` ring, where mixed readings and mask errors put the reading
+on the wrong surface. Pixels with no reading (holes) and points outside the image or
+behind the camera are unknown: hidden parts may go there, as they may behind nearer
+objects (the reading is nearer than the point) and below the visible surface along the
+ray.
 
 The margin grows with depth like the axial noise of structured-light and stereo sensors:
 ``margin_m + margin_quadratic_m * (z / 1 m)^2``.
@@ -24,6 +27,7 @@ from r2s.geometry.camera import project
 CARVE_MARGIN_M = 0.006
 CARVE_MARGIN_QUADRATIC_M = 0.006
 OWN_BAND_PX = 2
+OWN_RIM_PX = 1
 
 
 @dataclass(frozen=True)
@@ -31,34 +35,34 @@ class CarveView:
     """One depth view and the pixels that are the object's own.
 
     K : (3, 3); world_from_camera : (4, 4) OpenCV camera; depth_m : (H, W) metres along
-    the camera z axis, NaN / <= 0 = no reading; own : (H, W) bool, pixels the object may
-    cover (its kept mask pixels grown by a band); margin_m, margin_quadratic_m : see the
-    module docstring.
+    the camera z axis, NaN / <= 0 = no reading; exempt : (H, W) bool, the mask's uncertain
+    rim, where nothing is carved; margin_m, margin_quadratic_m : see the module docstring.
     """
 
     K: np.ndarray
     world_from_camera: np.ndarray
     depth_m: np.ndarray
-    own: np.ndarray
+    exempt: np.ndarray
     margin_m: float = CARVE_MARGIN_M
     margin_quadratic_m: float = CARVE_MARGIN_QUADRATIC_M
 
 
 def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray,
-               own_pixels: np.ndarray, band_px: int = OWN_BAND_PX,
+               own_pixels: np.ndarray, band_px: int = OWN_BAND_PX, rim_px: int = OWN_RIM_PX,
                margin_m: float = CARVE_MARGIN_M,
                margin_quadratic_m: float = CARVE_MARGIN_QUADRATIC_M) -> CarveView:
-    """A :class:`CarveView` whose own pixels are ``own_pixels`` ((N, 2) int (row, col), the
-    object's kept observations) grown by ``band_px`` pixels (mask edges are uncertain)."""
+    """A :class:`CarveView` for an object whose kept observations are ``own_pixels``
+    ((N, 2) int (row, col)): its rim (``band_px`` outside them, ``rim_px`` inside) is
+    exempt from carving."""
     depth = np.asarray(depth_m, dtype=np.float64)
     own = np.zeros(depth.shape, dtype=bool)
     pix = np.asarray(own_pixels, dtype=np.int64).reshape(-1, 2)
     own[pix[:, 0], pix[:, 1]] = True
-    if band_px > 0:
-        own = ndimage.binary_dilation(own, iterations=int(band_px))
+    grown = ndimage.binary_dilation(own, iterations=int(band_px)) if band_px > 0 else own
+    inner = ndimage.binary_erosion(own, iterations=int(rim_px)) if rim_px > 0 else own
     return CarveView(K=np.asarray(K, dtype=np.float64),
                      world_from_camera=np.asarray(world_from_camera, dtype=np.float64),
-                     depth_m=depth, own=own, margin_m=float(margin_m),
+                     depth_m=depth, exempt=grown & ~inner, margin_m=float(margin_m),
                      margin_quadratic_m=float(margin_quadratic_m))
 
 
@@ -73,7 +77,7 @@ def seen_free(view: CarveView, points_world: np.ndarray) -> np.ndarray:
     ok &= (row >= 0) & (row < height) & (col >= 0) & (col < width)
     row, col = np.where(ok, row, 0), np.where(ok, col, 0)
     d = view.depth_m[row, col]
-    valid = ok & np.isfinite(d) & (d > 0) & ~view.own[row, col]
+    valid = ok & np.isfinite(d) & (d > 0) & ~view.exempt[row, col]
     margin = view.margin_m + view.margin_quadratic_m * np.square(np.where(valid, d, 0.0))
     with np.errstate(invalid="ignore"):
         return valid & (z < d - margin)
