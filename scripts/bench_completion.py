@@ -97,7 +97,7 @@ def main() -> None:
                 shutil.copytree(src / "input", dst / "input")
                 shutil.copytree(src / "gt", dst / "gt")
             opts = [x for s in sets for x in ("--set", s)]
-            _r2s("run", str(dst), *([] if a.run else ["--until", "init"]), *opts)
+            _r2s("run", str(dst), "--force", *([] if a.run else ["--until", "init"]), *opts)
             rows = measure(dst)
             for r in rows:
                 print(f"{src.name:8s} {name:6s} id={r['id']:2d} extents {r['extents_mm']} "

@@ -6,8 +6,11 @@ table, the wall, an object behind, or the object's own far side, e.g. the inner 
 behind an L-shaped block's notch): it is free and may not be material. The exception is
 the mask's uncertain rim: pixels within ``band_px`` outside the object's kept pixels and
 its own outermost ``rim_px`` ring, where mixed readings and mask errors put the reading
-on the wrong surface. Pixels with no reading (holes) and points outside the image or
-behind the camera are unknown: hidden parts may go there, as they may behind nearer
+on the wrong surface. A sensor leaves holes along depth edges; a hole pixel within
+``hole_fill_px`` of valid readings takes the farthest of them (the far side of the edge is
+what the camera saw past), so that a completed shape does not spill through the hole ring
+around an object. Larger holes and points outside the image or behind the camera are
+unknown: hidden parts may go there, as they may behind nearer
 objects (the reading is nearer than the point) and below the visible surface along the
 ray.
 
@@ -28,6 +31,7 @@ CARVE_MARGIN_M = 0.006
 CARVE_MARGIN_QUADRATIC_M = 0.006
 OWN_BAND_PX = 2
 OWN_RIM_PX = 1
+HOLE_FILL_PX = 2
 
 
 @dataclass(frozen=True)
@@ -49,12 +53,12 @@ class CarveView:
 
 def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray,
                own_pixels: np.ndarray, band_px: int = OWN_BAND_PX, rim_px: int = OWN_RIM_PX,
-               margin_m: float = CARVE_MARGIN_M,
+               hole_fill_px: int = HOLE_FILL_PX, margin_m: float = CARVE_MARGIN_M,
                margin_quadratic_m: float = CARVE_MARGIN_QUADRATIC_M) -> CarveView:
     """A :class:`CarveView` for an object whose kept observations are ``own_pixels``
     ((N, 2) int (row, col)): its rim (``band_px`` outside them, ``rim_px`` inside) is
-    exempt from carving."""
-    depth = np.asarray(depth_m, dtype=np.float64)
+    exempt from carving; holes are filled as the module docstring says."""
+    depth = fill_edge_holes(np.asarray(depth_m, dtype=np.float64), hole_fill_px)
     own = np.zeros(depth.shape, dtype=bool)
     pix = np.asarray(own_pixels, dtype=np.int64).reshape(-1, 2)
     own[pix[:, 0], pix[:, 1]] = True
@@ -64,6 +68,20 @@ def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray
                      world_from_camera=np.asarray(world_from_camera, dtype=np.float64),
                      depth_m=depth, exempt=grown & ~inner, margin_m=float(margin_m),
                      margin_quadratic_m=float(margin_quadratic_m))
+
+
+def fill_edge_holes(depth_m: np.ndarray, radius_px: int) -> np.ndarray:
+    """(H, W) ``depth_m`` with each hole pixel (NaN / <= 0) within ``radius_px`` (square
+    window) of valid readings set to the largest of them."""
+    depth = np.asarray(depth_m, dtype=np.float64)
+    valid = np.isfinite(depth) & (depth > 0)
+    if radius_px <= 0 or valid.all():
+        return depth
+    far = ndimage.maximum_filter(np.where(valid, depth, -np.inf), size=2 * radius_px + 1)
+    out = depth.copy()
+    fill = ~valid & np.isfinite(far)
+    out[fill] = far[fill]
+    return out
 
 
 def seen_free(view: CarveView, points_world: np.ndarray) -> np.ndarray:
