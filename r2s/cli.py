@@ -218,6 +218,22 @@ def report(
     aggregate_metrics(scene_dirs, out=out, label=label)
 
 
+@app.command()
+def view(
+    scene_dir: Path = typer.Argument(..., help="Scene directory with export/ (r2s run first)."),
+    port: int = typer.Option(8080, help="Port to serve on."),
+    host: str = typer.Option("127.0.0.1",
+                             help="Address to bind (0.0.0.0 to share on the network)."),
+    screenshot: Optional[Path] = typer.Option(
+        None, help="Save a picture of the page (headless Chromium) to this PNG and exit."),
+) -> None:
+    """Look at the scene in the browser: observed points, reconstruction, collision pieces,
+    contact graph, and a player of the judge's rollout (objects that moved in red)."""
+    from r2s.viewer.cli_entry import view_scene
+
+    view_scene(scene_dir, host=host, port=port, screenshot=screenshot)
+
+
 def main() -> None:
     """Console-script entry point: expected errors become one red line and an exit code."""
     import logging

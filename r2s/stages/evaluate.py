@@ -3,7 +3,9 @@
 Reads only what an outside tool would: ``export/`` (SCENE_FORMAT.md), ``gt/`` and
 ``input/camera.json`` (for the picture; a camera rotation kept in the scene's model by
 ``r2s diagnose --set apply=true`` corrects it, as it did init's). Writes ``evaluate/metrics.json`` and
-``evaluate/rollout.png`` (first and last frame of the rollout seen by the input camera).
+``evaluate/rollout.png`` (first and last frame of the rollout seen by the input camera; the
+objects that moved are outlined, with arrows and their displacement, see
+:mod:`r2s.pictures.rollout_picture`).
 
 Scene-level keys of metrics.json: ``stability_ratio``, ``settling_time_s``,
 ``mean_linear_speed_mps``, ``mean_angular_speed_radps`` (rollout under gravity),
@@ -39,10 +41,12 @@ from r2s.metrics.geometry import (centroid_error_mm, posed, rotation_error_deg, 
 from r2s.metrics.penetration import (PYBULLET_MESH_MARGIN_M, SUPPORT_ID, PenetrationMetrics,
                                      penetration_metrics, scene_distances)
 from r2s.metrics.rendering import render_scene_rgb, rendering_metrics, side_by_side_png
+from r2s.metrics.motion import object_motions
 from r2s.metrics.stability import object_stability, scene_stability
+from r2s.pictures.rollout_picture import Frame, rollout_picture
 from r2s.sim.pybullet_bodies import connect_direct
 from r2s.sim.pybullet_scene import LoadedScene, load_export_scene
-from r2s.sim.render import colour_bodies, render_rgb, scaled_intrinsics, side_by_side
+from r2s.sim.render import colour_bodies, render, scaled_intrinsics
 from r2s.sim.rollout import Trajectory, rollout
 from r2s.stages.base import StageContext, StageOptions, StageSpec
 from r2s.stages.manifest import Manifest
@@ -161,11 +165,18 @@ def _camera(paths: ScenePaths, loaded: LoadedScene, model: dict
     return K, world_from_camera, w, h
 
 
-def _frame(client: int, camera: tuple, width_px: int) -> np.ndarray:
+def _frame(client: int, camera: tuple, width_px: int, body_ids: dict[int, int]
+           ) -> tuple[Frame, np.ndarray]:
+    """The picture (with the object id at each pixel) and the scaled ``K`` it was taken with."""
     K, world_from_camera, w, h = camera
     scale = min(1.0, width_px / w)
-    return render_rgb(client, scaled_intrinsics(K, scale), world_from_camera,
-                      max(1, round(w * scale)), max(1, round(h * scale)))
+    K_scaled = scaled_intrinsics(K, scale)
+    rgb, bodies = render(client, K_scaled, world_from_camera,
+                         max(1, round(w * scale)), max(1, round(h * scale)))
+    object_ids = np.full(bodies.shape, -1, dtype=np.int64)
+    for obj_id, body in body_ids.items():
+        object_ids[bodies == body] = obj_id
+    return Frame(rgb, object_ids), K_scaled
 
 
 def _png_bytes(image: np.ndarray) -> bytes:
@@ -184,7 +195,9 @@ class _Simulated:
     loaded: LoadedScene
     pen: PenetrationMetrics
     traj: Trajectory
-    frames: Optional[tuple[np.ndarray, np.ndarray]]
+    frames: Optional[tuple[Frame, Frame]]
+    pybullet_traj: Optional[Trajectory] = None     # the rollout the frames show
+    picture_camera: Optional[tuple[np.ndarray, np.ndarray]] = None  # (K, world_from_camera)
 
 
 def _simulate(paths: ScenePaths, options: Options, progress: ProgressFn, model: dict
@@ -198,16 +211,19 @@ def _simulate(paths: ScenePaths, options: Options, progress: ProgressFn, model: 
         if options.render:
             camera = _camera(paths, loaded, model)
             colour_bodies(client, loaded.body_ids, loaded.support_body)
-            first = _frame(client, camera, options.render_width_px)
+            first, K_scaled = _frame(client, camera, options.render_width_px, loaded.body_ids)
         progress("rollout", 0.1)
         traj = rollout(client, loaded, options.duration_s, options.rate_hz, options.record_hz,
                        progress=lambda m, f: progress(m, 0.1 + 0.3 * f))
         frames = None
         if options.render:
-            frames = (first, _frame(client, camera, options.render_width_px))
+            frames = (first, _frame(client, camera, options.render_width_px, loaded.body_ids)[0])
     finally:
         pb.disconnect(physicsClientId=client)
-    return _Simulated(loaded, pen, traj, frames)
+    sim = _Simulated(loaded, pen, traj, frames, pybullet_traj=traj)
+    if options.render:
+        sim.picture_camera = (K_scaled, camera[1])
+    return sim
 
 
 def _caption(sim: _Simulated, per_stab: list) -> str:
@@ -277,8 +293,11 @@ def run(ctx: StageContext) -> dict:
         "options": options.model_dump(mode="json"),
     })
     if sim.frames is not None:
-        picture = side_by_side(list(sim.frames), ["t = 0 s", f"t = {sim.traj.duration_s:.1f} s"],
-                               _caption(sim, per_stab))
+        motions = object_motions(sim.pybullet_traj, {o.id: o.label for o in export_objects})
+        picture = rollout_picture(
+            sim.frames[0], sim.frames[1], motions, *sim.picture_camera,
+            sim.pybullet_traj.duration_s, _caption(sim, per_stab),
+            unstable_ids=[s.id for s in per_stab if not s.stable])
         atomic_write_bytes(ctx.out_dir / "rollout.png", _png_bytes(picture))
     if view is not None:
         side_by_side_png(view[0], view[1], ctx.out_dir / "render.png", object_mask=view[2])
