@@ -40,13 +40,15 @@ class CarveView:
 
     K : (3, 3); world_from_camera : (4, 4) OpenCV camera; depth_m : (H, W) metres along
     the camera z axis, NaN / <= 0 = no reading; exempt : (H, W) bool, the mask's uncertain
-    rim, where nothing is carved; margin_m, margin_quadratic_m : see the module docstring.
+    rim, where nothing is carved; own : (H, W) bool, the kept pixels (what hides a point
+    from the camera there is the object itself); margin_m, margin_quadratic_m : see the module docstring.
     """
 
     K: np.ndarray
     world_from_camera: np.ndarray
     depth_m: np.ndarray
     exempt: np.ndarray
+    own: np.ndarray
     margin_m: float = CARVE_MARGIN_M
     margin_quadratic_m: float = CARVE_MARGIN_QUADRATIC_M
 
@@ -66,7 +68,7 @@ def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray
     inner = ndimage.binary_erosion(own, iterations=int(rim_px)) if rim_px > 0 else own
     return CarveView(K=np.asarray(K, dtype=np.float64),
                      world_from_camera=np.asarray(world_from_camera, dtype=np.float64),
-                     depth_m=depth, exempt=grown & ~inner, margin_m=float(margin_m),
+                     depth_m=depth, exempt=grown & ~inner, own=own, margin_m=float(margin_m),
                      margin_quadratic_m=float(margin_quadratic_m))
 
 
@@ -84,8 +86,10 @@ def fill_edge_holes(depth_m: np.ndarray, radius_px: int) -> np.ndarray:
     return out
 
 
-def seen_free(view: CarveView, points_world: np.ndarray) -> np.ndarray:
-    """(N,) bool: which world points (N, 3) the camera saw past (free space)."""
+def _lookup(view: CarveView, points_world: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(in_image (N,) bool, row, col (N,) int (0 outside), z (N,) camera depth, d (N,)
+    the reading at the pixel) of world points (N, 3)."""
     pts = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
     uv, z = project(pts, view.K, view.world_from_camera)
     height, width = view.depth_m.shape
@@ -94,7 +98,23 @@ def seen_free(view: CarveView, points_world: np.ndarray) -> np.ndarray:
     row = np.rint(np.where(ok, uv[:, 1], -1)).astype(np.int64)
     ok &= (row >= 0) & (row < height) & (col >= 0) & (col < width)
     row, col = np.where(ok, row, 0), np.where(ok, col, 0)
-    d = view.depth_m[row, col]
+    return ok, row, col, z, view.depth_m[row, col]
+
+
+def hidden_by_other(view: CarveView, points_world: np.ndarray) -> np.ndarray:
+    """(N,) bool: world points (N, 3) in the image that the camera could not see because
+    something other than the object is in front of them (a valid reading nearer by more
+    than the margin at a pixel that is not one of the object's kept pixels)."""
+    ok, row, col, z, d = _lookup(view, points_world)
+    valid = ok & np.isfinite(d) & (d > 0) & ~view.own[row, col]
+    margin = view.margin_m + view.margin_quadratic_m * np.square(np.where(valid, d, 0.0))
+    with np.errstate(invalid="ignore"):
+        return valid & (d < z - margin)
+
+
+def seen_free(view: CarveView, points_world: np.ndarray) -> np.ndarray:
+    """(N,) bool: which world points (N, 3) the camera saw past (free space)."""
+    ok, row, col, z, d = _lookup(view, points_world)
     valid = ok & np.isfinite(d) & (d > 0) & ~view.exempt[row, col]
     margin = view.margin_m + view.margin_quadratic_m * np.square(np.where(valid, d, 0.0))
     with np.errstate(invalid="ignore"):

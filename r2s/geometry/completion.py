@@ -18,6 +18,16 @@ that is not the object's own) is free space and becomes outside, so the extrusio
 only what the camera could not see: behind the visible surface, behind nearer objects,
 below, in depth holes and outside the image. Pieces left with less than
 ``MIN_PIECE_FRACTION`` of the largest piece's volume are dropped.
+
+An object seen past the top of something nearer continues behind it: the footprint is
+swept towards the camera (along the horizontal viewing direction only, never sideways)
+by at most ``extend_fraction`` of its visible size (and ``extend_max_m``), keeping the
+swept cells whose top (the nearest visible top height) is hidden by something other than
+the object itself, connected to the visible footprint. Cells whose top the camera would
+have seen stay empty, and nothing grows into the object's own shadow. Off by default: on
+three oblique synthetic scenes (scripts/bench_completion.py) a sweep of 0.5 helped the
+most occluded object and hurt objects next to nearer ones (a marker grown from 40 to
+74 mm), since the hidden space does not say where the object ends.
 """
 
 from __future__ import annotations
@@ -33,7 +43,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from skimage.measure import marching_cubes
 
 from r2s.geometry.camera import transform_points
-from r2s.geometry.carving import CarveView, seen_free
+from r2s.geometry.carving import CarveView, hidden_by_other, seen_free
 from r2s.geometry.plane import world_from_plane
 
 
@@ -59,6 +69,8 @@ class CompletedShape:
 
 
 MIN_PIECE_FRACTION = 0.1
+EXTEND_FRACTION = 0.0
+EXTEND_MAX_M = 0.05
 
 
 def footprint_sdf(hull_equations: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -142,7 +154,9 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
                          cell_m: float = 0.003, below_points_world: np.ndarray | None = None,
                          max_cells: int = 160, median_px: int = 3,
                          hull_margin_m: float = 0.0, outlier_factor: float = 4.0,
-                         view: CarveView | None = None) -> CompletedShape:
+                         view: CarveView | None = None,
+                         extend_fraction: float = EXTEND_FRACTION,
+                         extend_max_m: float = EXTEND_MAX_M) -> CompletedShape:
     """Complete a watertight mesh from one partial view of an object on a plane.
 
     Parameters
@@ -160,6 +174,8 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
         ignored, so that mixed pixels behind an edge do not stretch the footprint;
         0 keeps every point.
     view : the depth view to carve against (see the module docstring), or None.
+    extend_fraction, extend_max_m : how far the footprint may be swept towards the camera
+        into space hidden by something nearer (with a view; 0 = not at all).
 
     Returns
     -------
@@ -183,6 +199,10 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
     lo = pts[:, :2].min(axis=0) - hull_margin_m
     hi = pts[:, :2].max(axis=0) + hull_margin_m
     cell = max(cell_m, float(np.max(hi - lo)) / max_cells, float(pts[:, 2].max()) / max_cells)
+    reach = 0.0
+    if view is not None and extend_fraction > 0 and extend_max_m > 0:
+        reach = min(extend_fraction * float(np.max(hi - lo)), extend_max_m)
+        lo, hi = lo - reach, hi + reach
 
     pad = 2
     nx, ny = (np.ceil((hi - lo) / cell).astype(int) + 1 + 2 * pad)
@@ -213,12 +233,18 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
         bottom = np.clip(coef[0] * gx + coef[1] * gy + coef[2], 0.0, None)
     # keep at least two cells of material in every column
     top = np.maximum(top, bottom + 2 * cell)
+    inside_xy = -sdf
+    if reach > 0:
+        eye = transform_points(plane_from_world, view.world_from_camera[:3, 3][None])[0]
+        grown = _hidden_extension(sdf, top, gx, gy, reach, cell, eye, pts, view,
+                                  world_from_pl, hull.equations, hull_margin_m)
+        inside_xy = np.where(grown, cell, inside_xy)
 
     z0 = float(bottom.min()) - pad * cell
     nz = int(np.ceil((top.max() - z0) / cell)) + pad + 1
     zs = z0 + cell * np.arange(nz)
     field = np.minimum.reduce([
-        np.broadcast_to(-sdf[:, :, None], (nx, ny, len(zs))),
+        np.broadcast_to(inside_xy[:, :, None], (nx, ny, len(zs))),
         top[:, :, None] - zs[None, None, :],
         zs[None, None, :] - bottom[:, :, None],
     ])
@@ -251,6 +277,37 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
         mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=rgba.astype(np.uint8))
     return CompletedShape(mesh=mesh, world_from_object=world_from_object,
                           bottom_m=float(centre[2]), carved_fraction=carved_fraction)
+
+
+def _hidden_extension(sdf: np.ndarray, top: np.ndarray, gx: np.ndarray, gy: np.ndarray,
+                      reach: float, cell: float, eye_plane: np.ndarray, pts: np.ndarray,
+                      view: CarveView, world_from_pl: np.ndarray, hull_eq: np.ndarray,
+                      hull_margin_m: float) -> np.ndarray:
+    """(nx, ny) bool: cells outside the visible footprint (``sdf`` > 0), on its sweep of
+    length ``reach`` towards the camera (``eye_plane``, plane frame), whose top is hidden
+    by something else, connected to the footprint."""
+    toward = eye_plane[:2] - pts[:, :2].mean(axis=0)
+    if np.linalg.norm(toward) < 1e-9:
+        return np.zeros(sdf.shape, dtype=bool)  # camera straight above: nothing hidden
+    toward /= np.linalg.norm(toward)
+    xy = np.stack([gx, gy], axis=-1)
+    swept = np.zeros(sdf.shape, dtype=bool)
+    for s in np.arange(cell / 2, reach + cell / 2, cell / 2):
+        swept |= footprint_sdf(hull_eq, xy - s * toward) - hull_margin_m <= 0
+    footprint = sdf <= 0
+    candidate = swept & ~footprint
+    if not candidate.any():
+        return candidate
+    tops = np.stack([gx[candidate], gy[candidate], top[candidate]], axis=1)
+    hidden = np.zeros_like(candidate)
+    hidden[candidate] = hidden_by_other(view, transform_points(world_from_pl, tops))
+    # the first cells past the visible edge project onto the edge itself (the object's
+    # own pixels): they bridge the footprint and the hidden cells beyond, but only there
+    near = candidate & ndimage.binary_dilation(footprint, iterations=2)
+    labels, _ = ndimage.label(footprint | hidden | near)
+    attached = np.unique(labels[footprint])
+    hidden &= np.isin(labels, attached[attached > 0])
+    return hidden | (near & ndimage.binary_dilation(hidden, iterations=2))
 
 
 def _carve(field: np.ndarray, view: CarveView, world_from_pl: np.ndarray, xs: np.ndarray,

@@ -113,6 +113,10 @@ class Options(StageOptions):
     completion_carve: bool = Field(
         True, description="Carve a completed object against the depth image: no material "
                           "where the camera saw past it (see geometry/carving.py).")
+    completion_extend_fraction: float = Field(
+        0.0, ge=0, description="Sweep a completed object's footprint towards the camera "
+                               "into space hidden by nearer things, by up to this fraction "
+                               "of its visible size (0 = off; see geometry/completion.py).")
     support_points_max: int = Field(20000, ge=100, description="Most support-plane points "
                                     "kept in support_points.npy.")
     seed: int = Field(0, description="Random seed (RANSAC, subsampling).")
@@ -219,7 +223,8 @@ def _complete(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, pix: np.ndar
                                      colors=scene.rgb[pix[:, 0], pix[:, 1]],
                                      cell_m=o.completion_cell_m, below_points_world=others,
                                      hull_margin_m=o.completion_hull_margin_px * pixel_m,
-                                     view=view)
+                                     view=view,
+                                     extend_fraction=o.completion_extend_fraction)
     except ValueError as exc:
         raise StageError(f"object {spec.id}: completion failed ({exc})") from None
     return shape.mesh, shape.world_from_object
