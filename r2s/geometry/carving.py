@@ -41,7 +41,8 @@ class CarveView:
     K : (3, 3); world_from_camera : (4, 4) OpenCV camera; depth_m : (H, W) metres along
     the camera z axis, NaN / <= 0 = no reading; exempt : (H, W) bool, the mask's uncertain
     rim, where nothing is carved; own : (H, W) bool, the kept pixels (what hides a point
-    from the camera there is the object itself); margin_m, margin_quadratic_m : see the module docstring.
+    from the camera there is the object itself); margin_m, margin_quadratic_m : see the
+    module docstring.
     """
 
     K: np.ndarray
