@@ -6,7 +6,8 @@ per object: extents error (world axis-aligned box of the completed mesh vs the t
 largest relative error over x, y, z), centroid error (volume centroids, mm), and the
 free space the completion takes (pixels outside a 2-pixel band around the object's mask
 where the rendered completion is >= 15 mm in front of a valid observed depth, divided by
-the mask area). With ``--run`` the whole pipeline runs too and the stability ratio of
+the mask area). Mask ids with no ground-truth object (a realistic segmenter's split or
+sliver ids) are completed but not scored. With ``--run`` the whole pipeline runs too and the stability ratio of
 evaluate is printed.
 
 Usage:
@@ -62,7 +63,9 @@ def measure(scene: Path) -> list[dict]:
                                      cam.width, cam.height)
     obs = inp.depth_m
     rows = []
-    for k, i in enumerate(ids):
+    for i in ids:
+        if i not in truth:  # a mask id a segmenter made up (a split object, a sliver)
+            continue
         mine = inp.masks == i
         band = ndimage.binary_dilation(mine, iterations=2)
         # the object alone, so an object hidden behind another still counts
