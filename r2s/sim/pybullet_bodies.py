@@ -13,6 +13,8 @@ from typing import Sequence
 import numpy as np
 import pybullet as pb
 
+from r2s.sim.ascii_paths import ascii_safe_paths
+
 TIME_STEP_S = 1.0 / 240.0
 
 
@@ -64,8 +66,9 @@ def add_rigid_body(client: int, collision_files: Sequence[Path], world_from_obje
                    restitution: float = 0.0) -> int:
     """One dynamic body made of convex mesh pieces (files in the object frame)."""
     files = [str(f) for f in collision_files]
-    shape = pb.createCollisionShapeArray([pb.GEOM_MESH] * len(files), fileNames=files,
-                                         physicsClientId=client)
+    with ascii_safe_paths(files) as names:  # PyBullet crashes on non-ASCII file names
+        shape = pb.createCollisionShapeArray([pb.GEOM_MESH] * len(names), fileNames=names,
+                                             physicsClientId=client)
     pose = np.asarray(world_from_object, dtype=float)
     body = pb.createMultiBody(
         float(mass_kg), shape,
