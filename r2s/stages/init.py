@@ -35,10 +35,12 @@ from scipy import ndimage
 from r2s.errors import InputError, StageError
 from r2s.geometry import sanity
 from r2s.geometry.camera import backproject
+from r2s.geometry.carving import carve_view
 from r2s.geometry.colors import color_mesh_from_image, has_appearance
 from r2s.geometry.completion import complete_from_points
 from r2s.geometry.free_space import view_constraint
 from r2s.geometry.mask_edges import foreign_rim_pixels
+from r2s.geometry.point_cleanup import object_point_mask
 from r2s.geometry.overlay import fit_overlay, render_instances
 from r2s.geometry.plane import PlaneFit, fit_plane_ransac, signed_distance
 from r2s.geometry.registration import (IcpOptions, RegistrationResult, register_prior,
@@ -105,6 +107,17 @@ class Options(StageOptions):
     completion_hull_margin_px: float = Field(0.25, ge=0, description="Grow a completed "
                                              "object's footprint by this many pixels' "
                                              "footprint on the surface.")
+    completion_clean_points: bool = Field(
+        True, description="Before completing, drop mask points on the support plane and "
+                          "regions of the mask across a depth jump from the object's main "
+                          "surface (bleed; see geometry/point_cleanup.py).")
+    completion_carve: bool = Field(
+        True, description="Carve a completed object against the depth image: no material "
+                          "where the camera saw past it (see geometry/carving.py).")
+    completion_extend_fraction: float = Field(
+        0.0, ge=0, description="Sweep a completed object's footprint towards the camera "
+                               "into space hidden by nearer things, by up to this fraction "
+                               "of its visible size (0 = off; see geometry/completion.py).")
     support_points_max: int = Field(20000, ge=100, description="Most support-plane points "
                                     "kept in support_points.npy.")
     seed: int = Field(0, description="Random seed (RANSAC, subsampling).")
@@ -216,11 +229,18 @@ def _complete(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, pix: np.ndar
     cam = scene.camera
     depth = scene.depth_m[pix[:, 0], pix[:, 1]]
     pixel_m = float(np.median(depth)) / float(cam.K[0, 0])
+    if o.completion_clean_points:
+        keep = object_point_mask(pts, pix, depth, plane.point, plane.normal)
+        pts, pix = pts[keep], pix[keep]
+    view = (carve_view(cam.K, cam.world_from_camera, scene.depth_m, pix)
+            if o.completion_carve else None)
     try:
         shape = complete_from_points(pts, plane.point, plane.normal,
                                      colors=scene.rgb[pix[:, 0], pix[:, 1]],
                                      cell_m=o.completion_cell_m, below_points_world=others,
-                                     hull_margin_m=o.completion_hull_margin_px * pixel_m)
+                                     hull_margin_m=o.completion_hull_margin_px * pixel_m,
+                                     view=view,
+                                     extend_fraction=o.completion_extend_fraction)
     except ValueError as exc:
         raise StageError(f"object {spec.id}: completion failed ({exc})") from None
     return shape.mesh, shape.world_from_object
