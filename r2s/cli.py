@@ -24,6 +24,8 @@ SET_HELP = ("Stage option as key=value (repeatable), applied to the options the 
             "with (else the defaults); see the list below.")
 JSON_HELP = ("Print the stage summary and the metrics as one JSON document on stdout "
              "(tables and progress go to stderr).")
+WAIT_HELP = ("When another r2s process writes the scene: wait up to this many seconds for it "
+             "(default 0: stop at once with one line naming it).")
 
 
 def _version_callback(value: bool) -> None:
@@ -54,14 +56,21 @@ def _run_and_report(scene_dir: Path, as_json: bool, call: Callable) -> None:
                                 results_document, stdout_reserved_for_json)
     from r2s.console import print_warning, stage_progress
 
+    said: list[str] = []
+
+    def warn(message: str) -> None:
+        if message not in said:
+            said.append(message)
+            print_warning(message)
+
     if as_json:
         with stdout_reserved_for_json() as out:
-            results = call(no_progress, print_warning)
-            print_results(results)  # on stderr
+            results = call(no_progress, warn)
+            print_results(results, said)  # on stderr
             emit_json(out, results_document(scene_dir, results))
         return
-    results = call(stage_progress, print_warning)
-    print_results(results)
+    results = call(stage_progress, warn)
+    print_results(results, said)
     print_where(scene_dir)
 
 
@@ -75,12 +84,13 @@ def _parse_sets(sets: Optional[List[str]]) -> dict:
     return out
 
 
-def _run_one_stage(scene_dir: Path, stage_name: str, overrides: dict, as_json: bool) -> None:
+def _run_one_stage(scene_dir: Path, stage_name: str, overrides: dict, as_json: bool,
+                   wait_s: float = 0.0) -> None:
     from r2s.runner.pipeline import run_single_stage
 
     _run_and_report(scene_dir, as_json, lambda progress_factory, on_warning: [run_single_stage(
         scene_dir, stage_name, overrides, progress_factory=progress_factory,
-        on_warning=on_warning)])
+        on_warning=on_warning, wait_s=wait_s)])
 
 
 def _make_stage_command(stage_name: str, summary: str) -> Callable:
@@ -88,8 +98,9 @@ def _make_stage_command(stage_name: str, summary: str) -> Callable:
         scene_dir: Path = typer.Argument(..., help="Scene directory (holds input/)."),
         set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
         as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+        wait: float = typer.Option(0.0, "--wait", min=0, help=WAIT_HELP),
     ) -> None:
-        _run_one_stage(scene_dir, stage_name, _parse_sets(set_), as_json)
+        _run_one_stage(scene_dir, stage_name, _parse_sets(set_), as_json, wait)
 
     command.__doc__ = summary
     command.__name__ = f"cmd_{stage_name}"
@@ -124,13 +135,14 @@ def cmd_physopt(
                                                           "the objects it supports."),
     set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+    wait: float = typer.Option(0.0, "--wait", min=0, help=WAIT_HELP),
 ) -> None:
     overrides = _parse_sets(set_)
     # ``--only`` is one run's choice: without it, the whole scene (not a recorded --only)
     overrides.setdefault("only", "null" if only is None else str(only))
     if only is not None:
         overrides["only"] = str(only)
-    _run_one_stage(scene_dir, "physopt", overrides, as_json)
+    _run_one_stage(scene_dir, "physopt", overrides, as_json, wait)
 
 
 @app.command(name="evaluate", help=_STAGE_HELP["evaluate"],
@@ -143,11 +155,12 @@ def cmd_evaluate(
                                "the same as --set engine=..."),
     set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+    wait: float = typer.Option(0.0, "--wait", min=0, help=WAIT_HELP),
 ) -> None:
     overrides = _parse_sets(set_)
     if engine is not None:
         overrides["engine"] = engine
-    _run_one_stage(scene_dir, "evaluate", overrides, as_json)
+    _run_one_stage(scene_dir, "evaluate", overrides, as_json, wait)
 
 
 @app.command()
@@ -159,15 +172,17 @@ def run(
     set_: Optional[List[str]] = typer.Option(None, "--set",
                                              help="stage.key=value option (repeatable)."),
     as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+    wait: float = typer.Option(0.0, "--wait", min=0, help=WAIT_HELP),
 ) -> None:
     """Run every stage whose inputs or options changed, and skip the rest."""
     overrides = _parse_sets(set_)
 
     def call(progress_factory: Callable, on_warning: Callable) -> list:
         if not force:  # a finished scene answers without importing any stage
-            from r2s.runner.noop import quick_up_to_date
+            from r2s.runner.noop import quick_run
 
-            quick = quick_up_to_date(scene_dir, until, list(skip or []), overrides)
+            quick = quick_run(scene_dir, until, list(skip or []), overrides, wait_s=wait,
+                              notify=on_warning)
             if quick is not None:
                 for warning in quick[1]:
                     on_warning(warning)
@@ -176,7 +191,7 @@ def run(
 
         return run_pipeline(scene_dir, force=force, until=until, skip=list(skip or []),
                             overrides=overrides, progress_factory=progress_factory,
-                            on_warning=on_warning)
+                            on_warning=on_warning, wait_s=wait)
 
     _run_and_report(scene_dir, as_json, call)
 

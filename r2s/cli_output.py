@@ -31,8 +31,9 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
-def print_results(results: Sequence[Any]) -> None:
-    """The stage table, then the evaluation table when evaluate is among ``results``."""
+def print_results(results: Sequence[Any], already_said: Sequence[str] = ()) -> None:
+    """The stage table, the stages' flags and warnings (those not in ``already_said``),
+    then the evaluation table when evaluate is among ``results``."""
     from r2s.console import print_table
 
     from r2s.console import print_warning
@@ -41,12 +42,17 @@ def print_results(results: Sequence[Any]) -> None:
     for r in results:
         status = "[green]ran[/green]" if r.ran else f"[dim]{r.reason}[/dim]"
         brief = ", ".join(f"{k}={_fmt(v)}" for k, v in list(r.summary.items())[:4]
-                          if k != "warnings")
+                          if k not in ("flags", "warnings"))
         rows.append([r.name, status, f"{r.seconds:.1f}", brief])
     print_table("stages", ["stage", "status", "seconds", "summary"], rows)
-    for r in results:  # a stage's flagged results (e.g. physopt's objects moved off the view)
-        for warning in r.summary.get("warnings") or []:
-            print_warning(f"{r.name}: {warning}")
+    said = set(already_said)
+    for r in results:  # probably-wrong results: one line each, also in the stage summary
+        lines = [f if f.startswith("/") else f"{r.name}: {f}" for f in r.summary.get("flags") or []]
+        lines += [f"{r.name}: {w}" for w in r.summary.get("warnings") or []]
+        for line in lines:
+            if line not in said:  # a stage's flags may repeat input/'s warnings
+                said.add(line)
+                print_warning(line)
     for r in results:
         if r.name == "evaluate" and r.summary:
             metric_rows = [[k, _fmt(v)] for k, v in r.summary.items()

@@ -12,7 +12,7 @@ touched, added or removed, another option, an edited r2s) falls back to the full
 comparison is make's (size + mtime), but it only ever *confirms* a hash-based answer that
 was given for exactly those files.
 
-Imports: standard library only (the point is start-up time).
+Imports: standard library and :mod:`r2s.io.scene_lock` (the point is start-up time).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from typing import Any, Optional, Sequence
 RECORD_NAME = "up_to_date.json"
 CACHE_DIR = ".cache"  # r2s.io.paths.CACHE_DIR (not imported: it pulls in nothing, but keep
 #                      this module free of r2s imports so its cost is the standard library's)
-IGNORED_TOP_LEVEL = {CACHE_DIR, "run.log"}
+IGNORED_TOP_LEVEL = {CACHE_DIR, "run.log", ".r2s-lock"}  # r2s.io.scene_lock.LOCK_NAME
 _PACKAGE = Path(__file__).resolve().parents[1]
 
 
@@ -115,6 +115,19 @@ def forget(scene_dir: Path) -> None:
         (Path(scene_dir).resolve() / CACHE_DIR / RECORD_NAME).unlink()
     except OSError:
         pass
+
+
+def quick_run(scene_dir: Path, until: Optional[str], skip: Sequence[str], overrides: dict,
+              wait_s: float = 0.0, notify=lambda message: None
+              ) -> Optional[tuple[list[QuickResult], list[str]]]:
+    """:func:`quick_up_to_date` under the scene's write lock (a scene another process is
+    writing is busy, as for a full run); None for a folder without ``input/``."""
+    from r2s.io.scene_lock import scene_lock  # standard library + r2s.errors
+
+    if not (Path(scene_dir) / "input").is_dir():
+        return None
+    with scene_lock(Path(scene_dir), wait_s=wait_s, notify=notify):
+        return quick_up_to_date(scene_dir, until, skip, overrides)
 
 
 def quick_up_to_date(scene_dir: Path, until: Optional[str], skip: Sequence[str],

@@ -17,10 +17,12 @@ from pydantic import ValidationError
 
 from r2s.console import ProgressFn, silent_progress
 from r2s.errors import R2SError, UsageError
+from r2s.io.atomic import recover_scene
 from r2s.io.input_scene import load_input
 from r2s.io.paths import ScenePaths
 from r2s.io.manifest import Manifest, load_manifest
 from r2s.io.recorded_options import recorded_options
+from r2s.io.scene_lock import scene_lock
 from r2s.runner import noop
 from r2s.runner.base import StageOptions, StageResult, StageSpec, run_stage, staleness
 from r2s.runner.registry import PIPELINE, get_stage
@@ -94,16 +96,28 @@ def _check_scene(scene_dir: Path, on_warning: Callable[[str], None]) -> ScenePat
     return paths
 
 
+def _lock(scene_dir: Path, wait_s: float, notify: Callable[[str], None]):
+    paths = ScenePaths(Path(scene_dir))
+    if not paths.input.is_dir():
+        load_input(paths.root)  # raises the one-line error; no lock file in a non-scene
+    return scene_lock(paths.root, wait_s=wait_s, notify=notify)
+
+
 def run_single_stage(scene_dir: Path, name: str, overrides: dict,
                      progress_factory: ProgressFactory = silent_progress_factory,
-                     on_warning: Callable[[str], None] = _log_warning) -> StageResult:
+                     on_warning: Callable[[str], None] = _log_warning,
+                     wait_s: float = 0.0) -> StageResult:
     """``r2s <stage> SCENE``: rerun that one stage with its recorded options (else the
-    defaults) plus overrides."""
-    paths = _check_scene(scene_dir, on_warning)
-    spec = get_stage(name)
-    options = stage_options(spec, load_manifest(paths.manifest), overrides)
-    with progress_factory(name) as progress:
-        return run_stage(spec, paths.root, options, progress=progress, force=True)
+    defaults) plus overrides.
+
+    Holds the scene's write lock; another writer makes it fail at once (``wait_s`` 0) or
+    wait up to ``wait_s`` seconds (``on_warning`` is told that it waits)."""
+    with _lock(scene_dir, wait_s, on_warning):
+        paths = _check_scene(scene_dir, on_warning)
+        spec = get_stage(name)
+        options = stage_options(spec, load_manifest(paths.manifest), overrides)
+        with progress_factory(name) as progress:
+            return run_stage(spec, paths.root, options, progress=progress, force=True)
 
 
 def split_overrides(overrides: dict, stages: tuple[str, ...] = PIPELINE) -> dict[str, dict]:
@@ -125,16 +139,25 @@ def split_overrides(overrides: dict, stages: tuple[str, ...] = PIPELINE) -> dict
 def run_pipeline(scene_dir: Path, force: bool = False, until: Optional[str] = None,
                  skip: Optional[list[str]] = None, overrides: Optional[dict] = None,
                  progress_factory: ProgressFactory = silent_progress_factory,
-                 on_warning: Callable[[str], None] = _log_warning) -> list[StageResult]:
+                 on_warning: Callable[[str], None] = _log_warning,
+                 wait_s: float = 0.0) -> list[StageResult]:
     """Run each stage of :data:`PIPELINE` that is stale (or all with ``force``).
 
     Stages replay the options recorded in the manifest, updated by ``overrides``
     (``{"physopt.iterations": "50"}``). Every override is validated before any stage runs.
+    The whole run holds the scene's write lock (``wait_s``: see :func:`run_single_stage`)
+    and starts by removing scratch folders that killed runs left behind.
     """
-    skip = list(skip or [])
-    overrides = dict(overrides or {})
+    with _lock(scene_dir, wait_s, on_warning):
+        return _run_pipeline_locked(Path(scene_dir), force, until, list(skip or []),
+                                    dict(overrides or {}), progress_factory, on_warning)
+
+
+def _run_pipeline_locked(scene_dir: Path, force: bool, until: Optional[str], skip: list[str],
+                         overrides: dict, progress_factory: ProgressFactory,
+                         on_warning: Callable[[str], None]) -> list[StageResult]:
     if not force:  # nothing changed since a full check found everything up to date
-        quick = noop.quick_up_to_date(Path(scene_dir), until, skip, overrides)
+        quick = noop.quick_up_to_date(scene_dir, until, skip, overrides)
         if quick is not None:
             for warning in quick[1]:
                 on_warning(warning)
@@ -145,9 +168,10 @@ def run_pipeline(scene_dir: Path, force: bool = False, until: Optional[str] = No
     per_stage = split_overrides(overrides)
     for name, values in per_stage.items():  # a misspelt option fails before anything runs
         check_option_names(get_stage(name), values)
-    noop.forget(Path(scene_dir))
+    noop.forget(scene_dir)
     warnings: list[str] = []
     paths = _check_scene(scene_dir, lambda w: (warnings.append(w), on_warning(w)))
+    recover_scene(paths.root)  # under the lock: no scratch folder here belongs to a live run
     order = [n for n in (PIPELINE[: PIPELINE.index(until) + 1] if until else PIPELINE)
              if n not in skip]
     results: list[StageResult] = []
