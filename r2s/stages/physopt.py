@@ -85,7 +85,8 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
         src = _source(paths, options, manifest)
     except Exception:
         return []
-    return [paths.stage_dir(src), paths.contact_graph, paths.stage_dir("init")]
+    # objects.json: a user's mass_kg / density_kg_m3 / friction fixes those parameters
+    return [paths.stage_dir(src), paths.contact_graph, paths.stage_dir("init"), paths.objects]
 
 
 def run(ctx: StageContext) -> dict:
