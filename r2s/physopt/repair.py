@@ -145,7 +145,7 @@ def repair_round(make_world: MakeWorld, params: Params, order: list[int], movers
             world.close()
     hi = settings.friction_bounds[1]
     for i in movers:
-        if params[i].friction < hi:
+        if params[i].friction < hi and params[i].user_friction is None:
             log["objects"][i].append(f"round {rnd}: friction {params[i].friction:.2f} -> "
                                      f"{hi:.2f} (moved {result[i][0] * 1000:.1f} mm, "
                                      f"{result[i][1]:.1f} deg)")

@@ -23,7 +23,7 @@ from pydantic import Field
 
 from r2s.errors import StageError
 from r2s.geometry.convex_cache import cached_convex_decomposition
-from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexParams
+from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexMethod, ConvexParams
 from r2s.io.atomic import atomic_write_json
 from r2s.io.latest_state import latest_state_stage
 from r2s.io.manifest import Manifest
@@ -33,9 +33,11 @@ from r2s.io.state import SceneState, read_state, write_state
 from r2s.physopt.hierarchy import (descendants, lowest_points_m, order_root_to_leaves,
                                    parents_from_graph)
 from r2s.physopt.object_opt import optimise_objects
+from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, displacement_flags
 from r2s.physopt.params import initial_params, keep_previous
 from r2s.physopt.repair import depenetrate_scene, verify_and_repair, world_factory
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
+from r2s.physical.provenance import com_provenance, friction_provenance, user_entries
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.scene_model import corrected_state
 
@@ -46,7 +48,10 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
 
     source: Literal["auto", "init", "geomopt"] = Field(
         "auto", description="State to start from (auto: geomopt if it ran, else init).")
-    density_kg_m3: float = Field(600.0, gt=0, description="Nominal density for the mass prior.")
+    density_kg_m3: Optional[float] = Field(
+        None, gt=0, description="Nominal density for the mass prior (unset: by label, "
+                                "r2s/physical/density_table.py; input/objects.json's "
+                                "mass_kg or density_kg_m3 win).")
     mass_bounds: tuple[float, float] = Field(
         (0.5, 2.0), description="Mass bounds as factors of volume x density.")
     friction_init: float = Field(0.6, description="Starting per-body friction.")
@@ -55,8 +60,17 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
                                                    "result and stay fixed.")
     use_diffsim: bool = Field(True, description="Optimise each object through the torch "
                                                 "simulator before the PyBullet check.")
+    convex_method: ConvexMethod = Field(DEFAULT_CONVEX.method,
+                                        description="Convex decomposition: vhacd or coacd "
+                                                    "(same as export).")
+    observation_tolerance_m: float = Field(
+        0.02, gt=0, description="An object that ends farther than this from its init pose "
+                                "(where it was seen) is flagged, not silently moved, m.")
+    observation_tolerance_deg: float = Field(
+        15.0, gt=0, description="... or turned more than this from its init pose, degrees.")
     convex_threshold: float = Field(DEFAULT_CONVEX.threshold, gt=0,
-                                    description="CoACD threshold (same as export).")
+                                    description="CoACD threshold, convex_method=coacd only "
+                                                "(same as export).")
     max_convex_pieces: int = Field(DEFAULT_CONVEX.max_pieces, ge=1,
                                    description="Most convex pieces (same as export).")
 
@@ -71,7 +85,8 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
         src = _source(paths, options, manifest)
     except Exception:
         return []
-    return [paths.stage_dir(src), paths.contact_graph]
+    # objects.json: a user's mass_kg / density_kg_m3 / friction fixes those parameters
+    return [paths.stage_dir(src), paths.contact_graph, paths.stage_dir("init"), paths.objects]
 
 
 def run(ctx: StageContext) -> dict:
@@ -80,14 +95,14 @@ def run(ctx: StageContext) -> dict:
     # with the effects kept in the scene's model (COM, friction, table: r2s.scene_model)
     state = corrected_state(read_state(paths.stage_dir(src)), ctx.manifest.model)
     meshes = {o.id: welded(load_mesh(paths.stage_dir(src) / o.mesh)) for o in state.objects}
-    convex = ConvexParams(opt.convex_threshold, opt.max_convex_pieces)
+    convex = ConvexParams(opt.convex_threshold, opt.max_convex_pieces, opt.convex_method)
     pieces = {}
     for k, o in enumerate(state.objects):
         ctx.progress(f"object {o.id}: collision pieces", 0.1 * k / max(len(state.objects), 1))
         pieces[o.id] = cached_convex_decomposition(meshes[o.id], paths.convex_cache,
                                                    **convex.as_kwargs())
     params = initial_params(state, meshes, pieces, opt.density_kg_m3, opt.mass_bounds,
-                            opt.friction_init)
+                            opt.friction_init, user_entries(paths.root))
     parents = parents_from_graph(paths.contact_graph)
     order = order_root_to_leaves([o.id for o in state.objects], parents,
                                  lowest_points_m(state.objects, meshes))
@@ -109,14 +124,47 @@ def run(ctx: StageContext) -> dict:
         params = optimise_objects(params, meshes, state, free, opt, log, ctx.progress)
     params, final = verify_and_repair(make_world, params, order, [o.id for o in state.objects],
                                       opt, log, ctx.progress)
-    _write(ctx, paths.stage_dir(src), state, params, final, log)
+    flags = _observation_flags(paths, state, params, meshes, opt, ctx.manifest.model)
+    log["observation_flags"] = {str(i): reason for i, reason in flags.items()}
+    _write(ctx, paths.stage_dir(src), state, params, final, log, flags)
     ctx.progress("done", 1.0)
     return {"source": src, "objects": len(state.objects),
-            "still_moving": len(opt.moving(final)), "rounds": len(log["rounds"]) - 1}
+            "still_moving": len(opt.moving(final)), "rounds": len(log["rounds"]) - 1,
+            "flagged_objects": len(flags),
+            "warnings": [f"object {i}: {reason}" for i, reason in sorted(flags.items())]}
+
+
+def _observation_flags(paths: ScenePaths, state: SceneState, params: dict, meshes: dict,
+                       opt: Options, model: dict) -> dict[int, str]:
+    """Objects the rounds left farther from their init pose than the tolerance (id -> why);
+    the init pose is where the object was seen (the source state's without init/)."""
+    seen = state
+    if (paths.stage_dir("init") / "state.json").is_file():
+        seen = corrected_state(read_state(paths.stage_dir("init")), model)
+    flags, _ = displacement_flags(
+        {o.id: o.pose for o in seen.objects},
+        {i: p.world_from_object for i, p in params.items()},
+        {i: m.centroid for i, m in meshes.items()},
+        opt.observation_tolerance_m, opt.observation_tolerance_deg)
+    return flags
+
+
+def _provenance(p, notes: list, opt) -> dict:
+    """Where the physopt mass, friction and COM came from (r2s.physical.provenance)."""
+    raised = any("friction" in n and "->" in n for n in notes)
+    mass = p.mass_provenance
+    if abs(p.mass_kg - p.nominal_mass_kg) > 1e-9 * p.nominal_mass_kg:
+        mass = {"source": "optimised", "nominal_kg": p.nominal_mass_kg, "prior": mass}
+    return {"mass": mass,
+            "friction": friction_provenance(p.friction, user=p.user_friction,
+                                            initial=opt.friction_init,
+                                            bounds=tuple(opt.friction_bounds),
+                                            raised_for_stability=raised),
+            "com": com_provenance(p.com_in_object, p.centroid_in_object)}
 
 
 def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, final: dict,
-           log: dict) -> None:
+           log: dict, flags: dict[int, str]) -> None:
     """physopt/: the state with the tuned parameters, the meshes, log.json."""
     (ctx.out_dir / "meshes").mkdir()
     objects = []
@@ -126,8 +174,12 @@ def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, fi
         data = o.model_dump()
         data.update(mesh=f"meshes/{o.id}.glb", world_from_object=p.world_from_object.tolist(),
                     mass_kg=p.mass_kg, com_in_object=[float(x) for x in p.com_in_object],
-                    friction=p.friction, physopt_drift_m=final[o.id][0],
+                    friction=p.friction,
+                    provenance=_provenance(p, log["objects"][o.id], ctx.options),
+                    physopt_drift_m=final[o.id][0],
                     physopt_drift_deg=final[o.id][1])
+        if o.id in flags:
+            data[OBSERVATION_FLAG_KEY] = flags[o.id]
         objects.append(data)
     support = state.support.model_copy(update={"friction": ctx.options.support_friction})
     write_state(ctx.out_dir, SceneState(stage="physopt", gravity=state.gravity, support=support,
