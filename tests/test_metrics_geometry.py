@@ -127,3 +127,23 @@ def test_contains_against_analytic_sphere_and_box():
     box = trimesh.creation.box([0.1, 0.2, 0.3])
     pts = rng.uniform(-0.2, 0.2, (20000, 3))
     assert np.array_equal(contains(box, pts), np.all(np.abs(pts) < [0.05, 0.1, 0.15], axis=1))
+
+
+def test_surface_distance_with_faces_of_every_radius_class_equals_brute_force():
+    """Faces of each radius class (below 1, 1-2, 2-4 and over 4 median radii) are searched
+    in separate trees; the distances are bit for bit the minimum over all faces."""
+    rng = np.random.default_rng(7)
+    parts = [trimesh.creation.icosphere(subdivisions=s, radius=r).apply_translation(c)
+             for s, r, c in ((3, 0.05, (0, 0, 0)), (2, 0.05, (0.12, 0, 0)),
+                             (1, 0.06, (0, 0.14, 0)), (0, 0.08, (0, 0, 0.2)))]
+    mesh = trimesh.util.concatenate(parts)
+    radii = np.linalg.norm(mesh.triangles - mesh.triangles_center[:, None], axis=2).max(axis=1)
+    ratio = radii / np.median(radii)
+    for lo, hi in ((0, 1), (1, 2), (2, 4), (4, np.inf)):
+        assert np.any((ratio > lo) & (ratio <= hi)), (lo, hi)
+    near, _ = trimesh.sample.sample_surface(mesh, 400, seed=rng)
+    points = np.r_[near + rng.normal(0, 0.01, near.shape), rng.uniform(-0.2, 0.3, (400, 3))]
+    got = surface_distances_to(mesh, points)
+    tri = np.asarray(mesh.triangles)
+    want = [_pair_distances(tri, np.repeat(q[None], len(tri), axis=0)).min() for q in points]
+    np.testing.assert_array_equal(got, want)
