@@ -27,6 +27,10 @@ Imports run one way: no library package imports the runner, a stage or the CLI
 
 __version__ = "0.1.0"
 
+from r2s.lazy_imports import defer_open3d_plotly as _defer_open3d_plotly  # noqa: E402
+
+_defer_open3d_plotly()  # open3d's notebook drawing (Dash, Plotly) only when called
+
 _API = ("run", "run_stage", "load_export", "RunResult", "StageRun", "ExportScene",
         "ExportObject", "STAGES")
 """Names of :mod:`r2s.api` that ``r2s`` itself offers. The per-stage functions stay in

@@ -24,7 +24,7 @@ The estimated transform maps the *scaled* prior to the world::
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import trimesh
@@ -33,6 +33,9 @@ from scipy.spatial.transform import Rotation
 
 from r2s.geometry.camera import transform_points
 from r2s.geometry.free_space import ViewConstraint, free_space_violations
+
+_MATCHER_CACHE_SIZE = 64
+"""Matchers (facing sample sets and their trees) kept per model."""
 
 
 @dataclass(frozen=True)
@@ -134,6 +137,8 @@ class _Model:
     radius: float
     silhouette_idx: np.ndarray  # samples tested against the silhouette
     spacing: float  # typical distance between neighbouring samples
+    matchers: dict = field(default_factory=dict, repr=False, compare=False)
+    """Matchers by facing mask (bytes), filled by :func:`_matcher`."""
 
 
 @dataclass
@@ -204,14 +209,24 @@ class _Matcher:
 
 
 def _matcher(model: _Model, viewpoint_obj: np.ndarray | None) -> _Matcher:
-    """Samples whose normal faces ``viewpoint_obj`` (prior frame), or all when None."""
+    """Samples whose normal faces ``viewpoint_obj`` (prior frame), or all when None.
+
+    The visible side changes slowly while a pose is refined: the matcher of a set of
+    samples met before is taken from ``model.matchers`` instead of building its tree
+    again (the same points give the same tree and so the same matches)."""
     if viewpoint_obj is None:
         return _Matcher(model.tree, np.arange(len(model.points)))
     facing = np.einsum("nj,nj->n", model.normals, viewpoint_obj - model.points) > 0
     index = np.flatnonzero(facing)
     if len(index) < 3:
         return _Matcher(model.tree, np.arange(len(model.points)))
-    return _Matcher(cKDTree(model.points[index]), index)
+    key = facing.tobytes()
+    found = model.matchers.get(key)
+    if found is None:
+        if len(model.matchers) >= _MATCHER_CACHE_SIZE:
+            model.matchers.pop(next(iter(model.matchers)))
+        found = model.matchers[key] = _Matcher(cKDTree(model.points[index]), index)
+    return found
 
 
 def _correspond(model: _Model, matcher: _Matcher, y: np.ndarray, max_dist: float = np.inf
