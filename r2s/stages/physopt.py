@@ -1,17 +1,13 @@
 """The ``physopt`` stage: make the reconstructed scene stay at rest in simulation.
 
-Objects are processed root to leaves along the contact graph (parents fixed while a child
-is optimised). Each object's pose, COM (kept inside the shape), mass (bounded around
-volume x density) and friction (bounded to a plausible range) are optimised through the
-differentiable simulator where it is available; then a verification pass re-simulates the
-whole scene in PyBullet with the export's collision geometry, and objects that still move
-are revisited with their neighbours (more friction within bounds, then letting the engine
-settle them into the nearest rest state) until the scene is stable or the budget runs out.
-Every change is recorded per object with its reason in ``physopt/log.json``.
+Objects are optimised root to leaves along the contact graph through the differentiable
+simulator (pose, COM inside the shape, friction within bounds), then the whole scene is
+checked in PyBullet with the export's collision geometry and what still moves is repaired,
+first within the observation tolerance of where each object was seen (docs/physopt.md).
+Every change is recorded per object with its reason in ``physopt/log.json``; objects left
+beyond the tolerance are flagged.
 
-The algorithm lives in :mod:`r2s.physopt` (parameters, the differentiable per-object step,
-the PyBullet rounds); this module reads the state, calls it and writes the result.
-"""
+The algorithm lives in :mod:`r2s.physopt`; this module reads, calls it and writes."""
 
 from __future__ import annotations
 
@@ -33,7 +29,8 @@ from r2s.io.state import SceneState, read_state, write_state
 from r2s.physopt.hierarchy import (descendants, lowest_points_m, order_root_to_leaves,
                                    parents_from_graph)
 from r2s.physopt.object_opt import optimise_objects
-from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, displacement_flags
+from r2s.physopt.observation_bound import (OBSERVATION_FLAG_KEY, ObservationBound,
+                                           displacement_flags, seen_poses)
 from r2s.physopt.params import initial_params, keep_previous
 from r2s.physopt.repair import depenetrate_scene, verify_and_repair, world_factory
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
@@ -56,11 +53,6 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
                                                    "result and stay fixed.")
     use_diffsim: bool = Field(True, description="Optimise each object through the torch "
                                                 "simulator before the PyBullet check.")
-    observation_tolerance_m: float = Field(
-        0.02, gt=0, description="An object that ends farther than this from its init pose "
-                                "(where it was seen) is flagged, not silently moved, m.")
-    observation_tolerance_deg: float = Field(
-        15.0, gt=0, description="... or turned more than this from its init pose, degrees.")
     convex_threshold: float = Field(DEFAULT_CONVEX.threshold, gt=0,
                                     description="CoACD threshold (same as export).")
     max_convex_pieces: int = Field(DEFAULT_CONVEX.max_pieces, ge=1,
@@ -113,9 +105,15 @@ def run(ctx: StageContext) -> dict:
     if opt.use_diffsim:
         free = [i for i in order if params[i].movable]
         params = optimise_objects(params, meshes, state, free, opt, log, ctx.progress)
+    seen = seen_poses(paths, state, ctx.manifest.model)
+    centres = {i: m.centroid for i, m in meshes.items()}
+    bound = ObservationBound(seen, centres, opt.observation_tolerance_m,
+                             opt.observation_tolerance_deg) if opt.observation_bound else None
     params, final = verify_and_repair(make_world, params, order, [o.id for o in state.objects],
-                                      opt, log, ctx.progress)
-    flags = _observation_flags(paths, state, params, meshes, opt, ctx.manifest.model)
+                                      opt, log, ctx.progress, bound)
+    flags, _ = displacement_flags(seen, {i: p.world_from_object for i, p in params.items()},
+                                  centres, opt.observation_tolerance_m,
+                                  opt.observation_tolerance_deg)
     log["observation_flags"] = {str(i): reason for i, reason in flags.items()}
     _write(ctx, paths.stage_dir(src), state, params, final, log, flags)
     ctx.progress("done", 1.0)
@@ -123,21 +121,6 @@ def run(ctx: StageContext) -> dict:
             "still_moving": len(opt.moving(final)), "rounds": len(log["rounds"]) - 1,
             "flagged_objects": len(flags),
             "warnings": [f"object {i}: {reason}" for i, reason in sorted(flags.items())]}
-
-
-def _observation_flags(paths: ScenePaths, state: SceneState, params: dict, meshes: dict,
-                       opt: Options, model: dict) -> dict[int, str]:
-    """Objects the rounds left farther from their init pose than the tolerance (id -> why);
-    the init pose is where the object was seen (the source state's without init/)."""
-    seen = state
-    if (paths.stage_dir("init") / "state.json").is_file():
-        seen = corrected_state(read_state(paths.stage_dir("init")), model)
-    flags, _ = displacement_flags(
-        {o.id: o.pose for o in seen.objects},
-        {i: p.world_from_object for i, p in params.items()},
-        {i: m.centroid for i, m in meshes.items()},
-        opt.observation_tolerance_m, opt.observation_tolerance_deg)
-    return flags
 
 
 def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, final: dict,
