@@ -151,9 +151,17 @@ def repair_round(make_world: MakeWorld, params: Params, order: list[int], movers
                  result: Drift, rnd: int, settings: RepairSettings, log: dict,
                  bound: Optional[ObservationBound] = None) -> Params:
     """One round on the movers: COM towards the support, friction to its bound, then a
-    quasi-static settle of the whole scene (a settling move beyond the round's limit, or
-    with a ``bound`` one that carries an object beyond the observation tolerance, is
-    refused). Returns the new parameters."""
+    quasi-static settle of the whole scene (:func:`settle_round`). Returns the new
+    parameters."""
+    params = mass_and_friction_repair(make_world, params, movers, result, rnd, settings, log)
+    return settle_round(make_world, params, order, rnd, settings, log, bound)
+
+
+def mass_and_friction_repair(make_world: MakeWorld, params: Params, movers: list[int],
+                             result: Drift, rnd: int, settings: RepairSettings, log: dict
+                             ) -> Params:
+    """The repairs the camera cannot see: the movers' COM towards their support
+    (:func:`com_repair`) and their friction to its upper bound."""
     params = dict(params)
     if settings.com_repair:
         world = make_world(params)
@@ -172,6 +180,17 @@ def repair_round(make_world: MakeWorld, params: Params, order: list[int], movers
                                      f"{hi:.2f} (moved {result[i][0] * 1000:.1f} mm, "
                                      f"{result[i][1]:.1f} deg)")
             params[i] = replace(params[i], friction=hi)
+    return params
+
+
+def settle_round(make_world: MakeWorld, params: Params, order: list[int], rnd: int,
+                 settings: RepairSettings, log: dict,
+                 bound: Optional[ObservationBound] = None,
+                 only: Optional[set[int]] = None) -> Params:
+    """Quasi-static settle of the whole scene; a settling move beyond the round's limit,
+    with a ``bound`` one that carries an object beyond the observation tolerance, and with
+    ``only`` the move of an object outside it, is refused (the object keeps its pose)."""
+    params = dict(params)
     world = make_world(params)
     try:
         start = {i: params[i].world_from_object for i in order}
@@ -182,6 +201,8 @@ def repair_round(make_world: MakeWorld, params: Params, order: list[int], movers
     limit = settings.final_settle_shift_m if last else settings.max_settle_shift_m
     for i in order:
         shift = float(np.linalg.norm(settled[i][:3, 3] - start[i][:3, 3]))
+        if only is not None and i not in only:
+            continue
         if bound is not None and not bound.allows(i, start[i], settled[i]):
             log["objects"][i].append(f"round {rnd}: settling would carry it beyond the "
                                      "observation tolerance; kept in place")
@@ -303,19 +324,39 @@ def _repair_phase(make_world: MakeWorld, best: Kept, order: list[int],
         progress(f"verification round {label}{rnd}: {len(movers)} moving",
                  0.5 + 0.5 * rnd / (settings.max_rounds + 1))
         before = params
-        params = repair_round(make_world, params, order, movers, result, rnd, settings, log,
-                              bound)
+        name = f"{label}{rnd}" if label else rnd
+        if bound is None:
+            params = repair_round(make_world, params, order, movers, result, rnd, settings, log)
+        else:
+            # least observation change first: COM and friction, checked before any settling,
+            # which then moves only what still moves
+            params = mass_and_friction_repair(make_world, params, movers, result, rnd,
+                                              settings, log)
+            result = check(make_world, params, orders, settings.verify_duration_s)
+            log["rounds"].append({"round": name, "action": "COM+friction", "bounded": True,
+                                  "moving": settings.moving(result),
+                                  "drift": _drift_log(result)})
+            if rank(result, params) < best[0]:
+                best = (rank(result, params), params, result, name)
+            if not settings.moving(result):
+                break
+            checked = params
+            params = settle_round(make_world, params, order, rnd, settings, log, bound,
+                                  only=set(settings.moving(result)))
+            if all(_same(checked[i], params[i]) for i in order) and \
+                    not all(_same(before[i], params[i]) for i in order):
+                continue  # settling refused everything; the check above is current
         if all(_same(before[i], params[i]) for i in order):
             # nothing changed, so the check would repeat: on to the last round (its larger
             # settling limit), or done
             rnd = max(rnd, settings.max_rounds - 1)
             continue
         result = check(make_world, params, orders, settings.verify_duration_s)
-        log["rounds"].append({"round": f"{label}{rnd}" if label else rnd,
-                              "action": "friction+settle", "bounded": bound is not None,
+        log["rounds"].append({"round": name, "action": "friction+settle" if bound is None
+                              else "settle", "bounded": bound is not None,
                               "moving": settings.moving(result), "drift": _drift_log(result)})
         if rank(result, params) < best[0]:
-            best = (rank(result, params), params, result, f"{label}{rnd}" if label else rnd)
+            best = (rank(result, params), params, result, name)
     if settings.moving(best[2]) and settings.rest_duration_s > 0 and settings.max_rounds > 0:
         for movers_only in (True, False):  # the least disturbing first
             trial = damped_rest(make_world, best[1], order, orders, settings, log, best[2],
