@@ -272,9 +272,11 @@ def verify_and_repair(make_world: MakeWorld, params: Params, order: list[int],
     Rounds need not improve monotonically (settling one object can unsettle its
     neighbour), so the best checked state (:func:`score`) is returned with its check.
     ``export_order``: the order bodies are created in by the judge (checked forwards and
-    backwards). With a ``bound`` the rounds and the rest first run bounded by the
-    observation; the unbounded ones follow only when an object's drift is still at least
-    ``fallback_severity`` of the judge's criterion.
+    backwards). With a ``bound`` the rounds and the rest run in tiers of least observation
+    change: within ``repair_tolerance_m`` / ``_deg`` of where each object was seen; when
+    objects still move, within the bound's (flagging) tolerance; the unbounded ones only
+    when an object's drift is still at least ``fallback_severity`` of the judge's
+    criterion.
     """
     orders = [export_order, export_order[::-1]] if len(export_order) > 1 else [export_order]
     result = check(make_world, params, orders, settings.verify_duration_s)
@@ -285,19 +287,26 @@ def verify_and_repair(make_world: MakeWorld, params: Params, order: list[int],
         return score(drifts, settings, candidate, bound)
 
     best: Kept = (rank(result, params), params, result, 0)
-    phases = [bound, None] if bound is not None else [None]
-    for k, limit in enumerate(phases):
-        if k > 0:
+    phases: list[tuple[Optional[ObservationBound], str]] = [(None, "")]
+    if bound is not None:
+        tight = replace(bound, tolerance_m=min(settings.repair_tolerance_m, bound.tolerance_m),
+                        tolerance_deg=min(settings.repair_tolerance_deg, bound.tolerance_deg))
+        phases = [(tight, ""), (bound, "b"), (None, "u")]
+    for k, (limit, label) in enumerate(phases):
+        if k > 0 and not settings.moving(best[2]):
+            break
+        if limit is None and bound is not None:
             worst = max(severities(best[2], settings).values(), default=0.0)
             if worst < settings.fallback_severity:
                 break
             log["rounds"].append({"round": "fallback", "action": "unbounded repairs",
                                   "reason": f"after the observation-bounded repairs an object "
                                             f"drifts {worst:.2f} of the judge's criterion"})
+        elif k > 0:
+            log["rounds"].append({"round": "wider", "action": "repairs within the observation "
+                                  "tolerance", "reason": "objects still move"})
         best = _repair_phase(make_world, best, order, orders, settings, log, progress, limit,
-                             rank, label="" if k == 0 else "u")
-        if not settings.moving(best[2]):
-            break
+                             rank, label)
     log["kept"] = {"round": best[3], "moving": settings.moving(best[2])}
     return best[1], best[2]
 

@@ -52,6 +52,13 @@ class RepairSettings(BaseModel):
                                 "observation-bounded repairs keep objects within it.")
     observation_tolerance_deg: float = Field(
         15.0, gt=0, description="... or turned more than this from its init pose, degrees.")
+    repair_tolerance_m: float = Field(
+        0.005, gt=0, description="The first, tightest tier of the observation-bounded repairs: "
+                                 "settling and rest may not carry an object farther than this "
+                                 "from where it was seen, m (the next tier allows "
+                                 "observation_tolerance_m when objects still move).")
+    repair_tolerance_deg: float = Field(
+        3.0, gt=0, description="... nor turn it more than this, degrees.")
     observation_bound: bool = Field(
         True, description="Repair first within the observation tolerance (settling and the "
                           "damped rest may not carry an object beyond it); the unbounded "
