@@ -21,6 +21,8 @@ app = typer.Typer(add_completion=False, no_args_is_help=True,
 
 SET_HELP = ("Stage option as key=value (repeatable), applied to the options the stage last ran "
             "with (else the defaults); see the list below.")
+WAIT_HELP = ("When another r2s process writes the scene: wait up to this many seconds for it "
+             "(default 0: stop at once with one line naming it).")
 
 
 def _options_epilog(stage_name: str) -> str:
@@ -47,10 +49,11 @@ def _make_stage_command(stage_name: str, summary: str) -> Callable:
     def command(
         scene_dir: Path = typer.Argument(..., help="Scene directory (holds input/)."),
         set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
+        wait: float = typer.Option(0.0, "--wait", min=0, help=WAIT_HELP),
     ) -> None:
         from r2s.runner.pipeline import run_single_stage
 
-        run_single_stage(scene_dir, stage_name, _parse_sets(set_))
+        run_single_stage(scene_dir, stage_name, _parse_sets(set_), wait_s=wait)
 
     command.__doc__ = summary
     command.__name__ = f"cmd_{stage_name}"
@@ -84,6 +87,7 @@ def cmd_physopt(
     only: Optional[int] = typer.Option(None, "--only", help="Rerun only this object id and "
                                                           "the objects it supports."),
     set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
+    wait: float = typer.Option(0.0, "--wait", min=0, help=WAIT_HELP),
 ) -> None:
     from r2s.runner.pipeline import run_single_stage
 
@@ -92,7 +96,7 @@ def cmd_physopt(
     overrides.setdefault("only", "null" if only is None else str(only))
     if only is not None:
         overrides["only"] = str(only)
-    run_single_stage(scene_dir, "physopt", overrides)
+    run_single_stage(scene_dir, "physopt", overrides, wait_s=wait)
 
 
 @app.command(name="evaluate", help=_STAGE_HELP["evaluate"],
@@ -104,13 +108,14 @@ def cmd_evaluate(
         None, "--engine", help="Judge engine: pybullet (default) or mujoco (export/scene.xml); "
                                "the same as --set engine=..."),
     set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
+    wait: float = typer.Option(0.0, "--wait", min=0, help=WAIT_HELP),
 ) -> None:
     from r2s.runner.pipeline import run_single_stage
 
     overrides = _parse_sets(set_)
     if engine is not None:
         overrides["engine"] = engine
-    run_single_stage(scene_dir, "evaluate", overrides)
+    run_single_stage(scene_dir, "evaluate", overrides, wait_s=wait)
 
 
 @app.command()
@@ -121,12 +126,13 @@ def run(
     skip: Optional[List[str]] = typer.Option(None, help="Stage to leave out (repeatable)."),
     set_: Optional[List[str]] = typer.Option(None, "--set",
                                              help="stage.key=value option (repeatable)."),
+    wait: float = typer.Option(0.0, "--wait", min=0, help=WAIT_HELP),
 ) -> None:
     """Run every stage whose inputs or options changed, and skip the rest."""
     from r2s.runner.pipeline import run_pipeline
 
     run_pipeline(scene_dir, force=force, until=until, skip=list(skip or []),
-                 overrides=_parse_sets(set_))
+                 overrides=_parse_sets(set_), wait_s=wait)
 
 
 def _synth_epilog() -> Optional[str]:

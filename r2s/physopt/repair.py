@@ -175,7 +175,7 @@ def mass_and_friction_repair(make_world: MakeWorld, params: Params, movers: list
             world.close()
     hi = settings.friction_bounds[1]
     for i in movers:
-        if params[i].friction < hi:
+        if params[i].friction < hi and params[i].user_friction is None:
             log["objects"][i].append(f"round {rnd}: friction {params[i].friction:.2f} -> "
                                      f"{hi:.2f} (moved {result[i][0] * 1000:.1f} mm, "
                                      f"{result[i][1]:.1f} deg)")

@@ -10,10 +10,12 @@ from pydantic import ValidationError
 
 from r2s.console import console, print_table, stage_progress
 from r2s.errors import R2SError
+from r2s.io.atomic import recover_scene
 from r2s.io.input_scene import load_input
 from r2s.io.paths import ScenePaths
 from r2s.io.manifest import Manifest, load_manifest
 from r2s.io.recorded_options import recorded_options
+from r2s.io.scene_lock import scene_lock
 from r2s.runner.base import StageOptions, StageResult, StageSpec, run_stage, staleness
 from r2s.runner.registry import PIPELINE, get_stage
 
@@ -54,16 +56,46 @@ def stage_options(spec: StageSpec, manifest: Manifest, overrides: dict) -> Stage
         raise _option_error(spec, exc) from None
 
 
+_printed_warnings: set[str] = set()
+
+
+def _warn(message: str) -> None:
+    if message not in _printed_warnings:  # a stage's flags repeat input/'s warnings
+        _printed_warnings.add(message)
+        console.print(f"[yellow]warning:[/yellow] {message}")
+
+
 def _check_scene(scene_dir: Path) -> ScenePaths:
     paths = ScenePaths(Path(scene_dir))
+    _printed_warnings.clear()  # once per command
     for warning in load_input(paths.root).warnings:  # validates input/ up front
-        console.print(f"[yellow]warning:[/yellow] {warning}")
+        _warn(warning)
     return paths
 
 
-def run_single_stage(scene_dir: Path, name: str, overrides: dict) -> StageResult:
+def _notify(message: str) -> None:
+    console.print(f"[yellow]{message}[/yellow]")
+
+
+def _lock(scene_dir: Path, wait_s: float):
+    paths = ScenePaths(Path(scene_dir))
+    if not paths.input.is_dir():
+        load_input(paths.root)  # raises the one-line error; no lock file in a non-scene
+    return scene_lock(paths.root, wait_s=wait_s, notify=_notify)
+
+
+def run_single_stage(scene_dir: Path, name: str, overrides: dict,
+                     wait_s: float = 0.0) -> StageResult:
     """``r2s <stage> SCENE``: rerun that one stage with its recorded options (else the
-    defaults) plus overrides."""
+    defaults) plus overrides.
+
+    Holds the scene's write lock; another writer makes it fail at once (``wait_s`` 0) or
+    wait up to ``wait_s`` seconds."""
+    with _lock(scene_dir, wait_s):
+        return _run_single_stage_locked(scene_dir, name, overrides)
+
+
+def _run_single_stage_locked(scene_dir: Path, name: str, overrides: dict) -> StageResult:
     paths = _check_scene(scene_dir)
     spec = get_stage(name)
     options = stage_options(spec, load_manifest(paths.manifest), overrides)
@@ -84,14 +116,24 @@ def _split_overrides(overrides: dict) -> dict[str, dict]:
 
 
 def run_pipeline(scene_dir: Path, force: bool = False, until: Optional[str] = None,
-                 skip: Optional[list[str]] = None, overrides: Optional[dict] = None
-                 ) -> list[StageResult]:
+                 skip: Optional[list[str]] = None, overrides: Optional[dict] = None,
+                 wait_s: float = 0.0) -> list[StageResult]:
     """Run each stage of :data:`PIPELINE` that is stale (or all with ``force``).
 
     Stages replay the options recorded in the manifest, updated by ``overrides``
     (``{"physopt.iterations": "50"}``).
+    The whole run holds the scene's write lock (``wait_s``: see :func:`run_single_stage`)
+    and starts by removing scratch folders that killed runs left behind.
     """
+    with _lock(scene_dir, wait_s):
+        return _run_pipeline_locked(scene_dir, force, until, skip, overrides)
+
+
+def _run_pipeline_locked(scene_dir: Path, force: bool, until: Optional[str],
+                         skip: Optional[list[str]], overrides: Optional[dict]
+                         ) -> list[StageResult]:
     paths = _check_scene(scene_dir)
+    recover_scene(paths.root)  # under the lock: no scratch folder here belongs to a live run
     skip = list(skip or [])
     for name in skip + ([until] if until else []):
         if name not in PIPELINE:
@@ -123,12 +165,14 @@ def _print_results(results: list[StageResult]) -> None:
     for r in results:
         status = "[green]ran[/green]" if r.ran else f"[dim]{r.reason}[/dim]"
         brief = ", ".join(f"{k}={_fmt(v)}" for k, v in list(r.summary.items())[:4]
-                          if k != "warnings")
+                          if k not in ("flags", "warnings"))
         rows.append([r.name, status, f"{r.seconds:.1f}", brief])
     print_table("stages", ["stage", "status", "seconds", "summary"], rows)
-    for r in results:
+    for r in results:  # probably-wrong results: one line each, also in the stage summary
+        for flag in r.summary.get("flags") or []:
+            _warn(flag if flag.startswith("/") else f"{r.name}: {flag}")
         for warning in r.summary.get("warnings") or []:
-            console.print(f"[yellow]warning:[/yellow] {r.name}: {warning}")
+            _warn(f"{r.name}: {warning}")
     for r in results:
         if r.name == "evaluate" and r.summary:
             _print_metrics(r.summary)

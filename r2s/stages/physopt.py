@@ -34,6 +34,7 @@ from r2s.physopt.observation_bound import (OBSERVATION_FLAG_KEY, ObservationBoun
 from r2s.physopt.params import initial_params, keep_previous
 from r2s.physopt.repair import depenetrate_scene, verify_and_repair, world_factory
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
+from r2s.physical.provenance import com_provenance, friction_provenance, user_entries
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.scene_model import corrected_state
 
@@ -44,7 +45,10 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
 
     source: Literal["auto", "init", "geomopt"] = Field(
         "auto", description="State to start from (auto: geomopt if it ran, else init).")
-    density_kg_m3: float = Field(600.0, gt=0, description="Nominal density for the mass prior.")
+    density_kg_m3: Optional[float] = Field(
+        None, gt=0, description="Nominal density for the mass prior (unset: by label, "
+                                "r2s/physical/density_table.py; input/objects.json's "
+                                "mass_kg or density_kg_m3 win).")
     mass_bounds: tuple[float, float] = Field(
         (0.5, 2.0), description="Mass bounds as factors of volume x density.")
     friction_init: float = Field(0.6, description="Starting per-body friction.")
@@ -85,7 +89,7 @@ def run(ctx: StageContext) -> dict:
         pieces[o.id] = cached_convex_decomposition(meshes[o.id], paths.convex_cache,
                                                    **convex.as_kwargs())
     params = initial_params(state, meshes, pieces, opt.density_kg_m3, opt.mass_bounds,
-                            opt.friction_init)
+                            opt.friction_init, user_entries(paths.root))
     parents = parents_from_graph(paths.contact_graph)
     order = order_root_to_leaves([o.id for o in state.objects], parents,
                                  lowest_points_m(state.objects, meshes))
@@ -123,6 +127,20 @@ def run(ctx: StageContext) -> dict:
             "warnings": [f"object {i}: {reason}" for i, reason in sorted(flags.items())]}
 
 
+def _provenance(p, notes: list, opt) -> dict:
+    """Where the physopt mass, friction and COM came from (r2s.physical.provenance)."""
+    raised = any("friction" in n and "->" in n for n in notes)
+    mass = p.mass_provenance
+    if abs(p.mass_kg - p.nominal_mass_kg) > 1e-9 * p.nominal_mass_kg:
+        mass = {"source": "optimised", "nominal_kg": p.nominal_mass_kg, "prior": mass}
+    return {"mass": mass,
+            "friction": friction_provenance(p.friction, user=p.user_friction,
+                                            initial=opt.friction_init,
+                                            bounds=tuple(opt.friction_bounds),
+                                            raised_for_stability=raised),
+            "com": com_provenance(p.com_in_object, p.centroid_in_object)}
+
+
 def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, final: dict,
            log: dict, flags: dict[int, str]) -> None:
     """physopt/: the state with the tuned parameters, the meshes, log.json."""
@@ -134,7 +152,9 @@ def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, fi
         data = o.model_dump()
         data.update(mesh=f"meshes/{o.id}.glb", world_from_object=p.world_from_object.tolist(),
                     mass_kg=p.mass_kg, com_in_object=[float(x) for x in p.com_in_object],
-                    friction=p.friction, physopt_drift_m=final[o.id][0],
+                    friction=p.friction,
+                    provenance=_provenance(p, log["objects"][o.id], ctx.options),
+                    physopt_drift_m=final[o.id][0],
                     physopt_drift_deg=final[o.id][1])
         if o.id in flags:
             data[OBSERVATION_FLAG_KEY] = flags[o.id]
