@@ -8,13 +8,13 @@ its upper bound, and settles the scene quasi-statically; when rounds run out wit
 moving, a damped dynamic rest is the last resort (:func:`damped_rest`). The best checked
 state is kept (:func:`score`).
 
-Repairs are bounded by the observation (:class:`r2s.physopt.observation_bound.ObservationBound`):
-the rounds and the damped rest first run with settling and rest moves that would carry an
-object beyond the observation tolerance from where it was seen refused (the COM and
-friction repairs change nothing the camera sees, so they are tried first in every round);
-only when that leaves an object whose drift is at least ``fallback_severity`` of the judge's
-criterion do the unbounded repairs run, from the best bounded state (and what they move far
-is flagged by the stage).
+Repairs are bounded by the observation (:class:`r2s.physopt.observation_bound.ObservationBound`),
+in tiers of least observation change (:func:`verify_and_repair`): the COM and friction
+repairs, which change nothing the camera sees, are checked before any settling; settling
+and the damped rest may not carry an object beyond ``repair_tolerance_m`` / ``_deg`` from
+where it was seen, then (objects still moving) beyond the flagging tolerance; the
+unbounded repairs run only when an object still drifts at least ``fallback_severity`` of
+the judge's criterion (what they move far is flagged by the stage).
 """
 
 from __future__ import annotations

@@ -50,7 +50,7 @@ class Options(StageOptions):
     lambda_anchor: float = Field(1.0, ge=0, description="weight of the pose anchor to the init pose")
     sigma_translation_m: float = Field(0.02, gt=0, description="translation that costs 1 in the anchor (m)")
     sigma_rotation_m: float = Field(0.01, gt=0, description="rotation, as displacement of the farthest point, that costs 1 (m)")
-    anchor_sideways_ratio: float = Field(1.0, ge=1, description="image-space anchor: a move across the camera's viewing ray costs this many times more per metre than one along it (1: isotropic)")
+    anchor_sideways_ratio: float = Field(4.0, ge=1, description="image-space anchor: a move across the camera's viewing ray costs this many times more per metre than one along it (1: isotropic; docs/observation.md)")
     top_k: int = Field(10, ge=1, description="K of the TopK-min contact term")
     samples: int = Field(2000, ge=50, description="surface samples per object")
     sdf_resolution: int = Field(128, ge=8, le=512, description="SDF voxels per axis (the most per axis when sdf_voxel_size_m is set)")
