@@ -18,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from r2s.console import ProgressFn, silent_progress
 from r2s.geometry.convex_cache import cached_convex_decomposition
-from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexParams
+from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexMethod, ConvexParams
 from r2s.geometry.mass_properties import mass_properties
 from r2s.io.export_writer import ExportBody, write_export
 from r2s.io.mesh_io import load_mesh, welded
@@ -37,15 +37,18 @@ class BodyParams(BaseModel):
         None, gt=0, description="Density where no mass is estimated (unset: by label, "
                                 "r2s/physical/density_table.py).")
     default_friction: float = Field(0.8, gt=0, description="Body friction where none is estimated.")
+    convex_method: ConvexMethod = Field(DEFAULT_CONVEX.method,
+                                        description="Convex decomposition: vhacd or coacd.")
     convex_threshold: float = Field(DEFAULT_CONVEX.threshold, gt=0,
-                                    description="CoACD concavity threshold.")
+                                    description="CoACD concavity threshold "
+                                                "(convex_method=coacd only).")
     max_convex_pieces: int = Field(DEFAULT_CONVEX.max_pieces, ge=1,
                                    description="Most convex pieces per object.")
     restitution: float = Field(0.0, ge=0, le=1, description="Restitution of every body.")
 
     @property
     def convex(self) -> ConvexParams:
-        return ConvexParams(self.convex_threshold, self.max_convex_pieces)
+        return ConvexParams(self.convex_threshold, self.max_convex_pieces, self.convex_method)
 
 
 @dataclass(frozen=True)

@@ -68,7 +68,7 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
         source = _resolve_source(paths, options, manifest)
     except StageError:
         return []
-    found = [paths.gt] if source == "gt" else [paths.stage_dir(source)]
+    found = [paths.gt] if source == "gt" else [paths.stage_dir(source), paths.objects]
     if options.observation:
         found += [paths.stage_dir("init"), paths.camera, paths.depth_png, paths.depth_npy,
                   paths.masks]

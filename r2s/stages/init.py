@@ -42,6 +42,7 @@ from r2s.geometry.free_space import view_constraint
 from r2s.geometry.mask_edges import foreign_rim_pixels
 from r2s.geometry.point_cleanup import object_point_mask
 from r2s.geometry.overlay import fit_overlay, render_instances
+from r2s.geometry.prior_refine import RefineOptions, refine_axis_scale
 from r2s.geometry.plane import PlaneFit, fit_plane_ransac, signed_distance
 from r2s.geometry.registration import (IcpOptions, RegistrationResult, register_prior,
                                        surface_fit, voxel_downsample)
@@ -102,6 +103,16 @@ class Options(StageOptions):
     global_fallback_fitness: float = Field(0.5, ge=0, le=1, description="Run the global pose "
                                            "search too when ICP from the given prior pose "
                                            "explains fewer observed points than this.")
+    axis_scale: bool = Field(False, description="After registration, refine the prior's "
+                             "scale per axis (single-image priors get proportions wrong per "
+                             "axis) with its pose, and keep it out of the support plane "
+                             "(geometry/prior_refine.py). Off by default: measured neutral "
+                             "on init's CD (docs/realistic.md).")
+    axis_scale_min: float = Field(0.8, gt=0, le=1, description="Smallest per-axis scale.")
+    axis_scale_max: float = Field(1.25, ge=1, description="Largest per-axis scale.")
+    rest_on_support: bool = Field(False, description="With axis_scale: pull a prior whose "
+                                  "bottom is within 20 mm of the support plane onto it (else "
+                                  "only out of it).")
     completion_cell_m: float = Field(0.003, gt=0, description="Grid cell of the height-field "
                                      "completion of objects without a prior.")
     completion_hull_margin_px: float = Field(0.25, ge=0, description="Grow a completed "
@@ -215,6 +226,13 @@ def _register(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, plane: Plane
     mesh.apply_scale(result.scale)
     world_from_object = result.world_from_object.copy()
     world_from_object[:3, 3] += world_from_object[:3, :3] @ (result.scale * centre)
+    if o.axis_scale:
+        refined = refine_axis_scale(
+            prior, reg_pts, result.world_from_object, result.scale, cam.world_from_camera[:3, 3],
+            view, (plane.point, plane.normal),
+            RefineOptions(scale_bounds=(o.axis_scale_min, o.axis_scale_max), seed=o.seed,
+                          support_one_sided=not o.rest_on_support, contact_m=0.02))
+        mesh, world_from_object = refined.object_mesh(prior)
     if not has_appearance(mesh):
         mesh = color_mesh_from_image(mesh, world_from_object, scene.rgb, scene.depth_m, cam.K,
                                      cam.world_from_camera, scene.masks == spec.id)

@@ -19,7 +19,7 @@ from pydantic import Field
 
 from r2s.errors import StageError
 from r2s.geometry.convex_cache import cached_convex_decomposition
-from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexParams
+from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexMethod, ConvexParams
 from r2s.io.atomic import atomic_write_json
 from r2s.io.latest_state import latest_state_stage
 from r2s.io.manifest import Manifest
@@ -57,8 +57,12 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
                                                    "result and stay fixed.")
     use_diffsim: bool = Field(True, description="Optimise each object through the torch "
                                                 "simulator before the PyBullet check.")
+    convex_method: ConvexMethod = Field(DEFAULT_CONVEX.method,
+                                        description="Convex decomposition: vhacd or coacd "
+                                                    "(same as export).")
     convex_threshold: float = Field(DEFAULT_CONVEX.threshold, gt=0,
-                                    description="CoACD threshold (same as export).")
+                                    description="CoACD threshold, convex_method=coacd only "
+                                                "(same as export).")
     max_convex_pieces: int = Field(DEFAULT_CONVEX.max_pieces, ge=1,
                                    description="Most convex pieces (same as export).")
 
@@ -73,7 +77,8 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
         src = _source(paths, options, manifest)
     except Exception:
         return []
-    return [paths.stage_dir(src), paths.contact_graph, paths.stage_dir("init")]
+    # objects.json: a user's mass_kg / density_kg_m3 / friction fixes those parameters
+    return [paths.stage_dir(src), paths.contact_graph, paths.stage_dir("init"), paths.objects]
 
 
 def run(ctx: StageContext) -> dict:
@@ -82,7 +87,7 @@ def run(ctx: StageContext) -> dict:
     # with the effects kept in the scene's model (COM, friction, table: r2s.scene_model)
     state = corrected_state(read_state(paths.stage_dir(src)), ctx.manifest.model)
     meshes = {o.id: welded(load_mesh(paths.stage_dir(src) / o.mesh)) for o in state.objects}
-    convex = ConvexParams(opt.convex_threshold, opt.max_convex_pieces)
+    convex = ConvexParams(opt.convex_threshold, opt.max_convex_pieces, opt.convex_method)
     pieces = {}
     for k, o in enumerate(state.objects):
         ctx.progress(f"object {o.id}: collision pieces", 0.1 * k / max(len(state.objects), 1))
