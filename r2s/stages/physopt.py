@@ -28,13 +28,11 @@ from r2s.io.paths import PHYSOPT_LOG_FILE, ScenePaths
 from r2s.io.state import SceneState, read_state, write_state
 from r2s.physopt.hierarchy import (descendants, lowest_points_m, order_root_to_leaves,
                                    parents_from_graph)
-from r2s.physopt.object_opt import optimise_objects
-from r2s.physopt.observation_bound import (OBSERVATION_FLAG_KEY, ObservationBound,
-                                           displacement_flags, seen_poses)
+from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, seen_poses
 from r2s.physopt.params import initial_params, keep_previous
-from r2s.physopt.repair import depenetrate_scene, verify_and_repair, world_factory
+from r2s.physopt.solve import physopt_provenance, solve_scene
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
-from r2s.physical.provenance import com_provenance, friction_provenance, user_entries
+from r2s.physical.provenance import user_entries
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.scene_model import corrected_state
 
@@ -108,42 +106,15 @@ def run(ctx: StageContext) -> dict:
         params = keep_previous(params, read_state(paths.stage_dir("physopt")), rerun)
         log["only"] = {"object": opt.only, "rerun": sorted(rerun)}
 
-    make_world = world_factory(pieces, state, order, opt)
-    ctx.progress("depenetration", 0.1)
-    params = depenetrate_scene(make_world, params, order, log)
-    if opt.use_diffsim:
-        free = [i for i in order if params[i].movable]
-        params = optimise_objects(params, meshes, state, free, opt, log, ctx.progress)
-    seen = seen_poses(paths, state, ctx.manifest.model)
-    centres = {i: m.centroid for i, m in meshes.items()}
-    bound = ObservationBound(seen, centres, opt.observation_tolerance_m,
-                             opt.observation_tolerance_deg) if opt.observation_bound else None
-    params, final = verify_and_repair(make_world, params, order, [o.id for o in state.objects],
-                                      opt, log, ctx.progress, bound)
-    flags, _ = displacement_flags(seen, {i: p.world_from_object for i, p in params.items()},
-                                  centres, opt.observation_tolerance_m,
-                                  opt.observation_tolerance_deg)
-    log["observation_flags"] = {str(i): reason for i, reason in flags.items()}
+    solved = solve_scene(params, pieces, meshes, state, order,
+                         seen_poses(paths, state, ctx.manifest.model), opt, log, ctx.progress)
+    params, final, flags = solved.params, solved.drift, solved.flags
     _write(ctx, paths.stage_dir(src), state, params, final, log, flags)
     ctx.progress("done", 1.0)
     return {"source": src, "objects": len(state.objects),
             "still_moving": len(opt.moving(final)), "rounds": len(log["rounds"]) - 1,
             "flagged_objects": len(flags),
             "warnings": [f"object {i}: {reason}" for i, reason in sorted(flags.items())]}
-
-
-def _provenance(p, notes: list, opt) -> dict:
-    """Where the physopt mass, friction and COM came from (r2s.physical.provenance)."""
-    raised = any("friction" in n and "->" in n for n in notes)
-    mass = p.mass_provenance
-    if abs(p.mass_kg - p.nominal_mass_kg) > 1e-9 * p.nominal_mass_kg:
-        mass = {"source": "optimised", "nominal_kg": p.nominal_mass_kg, "prior": mass}
-    return {"mass": mass,
-            "friction": friction_provenance(p.friction, user=p.user_friction,
-                                            initial=opt.friction_init,
-                                            bounds=tuple(opt.friction_bounds),
-                                            raised_for_stability=raised),
-            "com": com_provenance(p.com_in_object, p.centroid_in_object)}
 
 
 def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, final: dict,
@@ -158,7 +129,9 @@ def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, fi
         data.update(mesh=f"meshes/{o.id}.glb", world_from_object=p.world_from_object.tolist(),
                     mass_kg=p.mass_kg, com_in_object=[float(x) for x in p.com_in_object],
                     friction=p.friction,
-                    provenance=_provenance(p, log["objects"][o.id], ctx.options),
+                    provenance=physopt_provenance(p, log["objects"][o.id],
+                                                  ctx.options.friction_init,
+                                                  ctx.options.friction_bounds),
                     physopt_drift_m=final[o.id][0],
                     physopt_drift_deg=final[o.id][1])
         if o.id in flags:
