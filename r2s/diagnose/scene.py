@@ -28,7 +28,7 @@ from r2s.diagnose.measure.interaction import read_push
 from r2s.diagnose.measure.observe import (FitQuality, ObjectModel, depth_residual_map,
                                           interaction_residual, measure_fit_qualities,
                                           physics_residual, registration_residual,
-                                          support_residual, world_spec)
+                                          support_residual, table_shape_residual, world_spec)
 from r2s.diagnose.model import corrected_input, corrected_state
 from r2s.errors import StageError
 from r2s.io.input_scene import InputScene, load_input, read_json_file
@@ -47,6 +47,7 @@ class MeasureSettings:
 
     scale_sigma: float = 0.01
     support_sigma_deg: float = 0.3
+    table_shape_sigma_m: float = 0.001
     min_fitness: float = 0.6
     max_rmse_m: float = 0.004
     physics_source: str = "auto"
@@ -242,7 +243,8 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
         elif paths.interaction.is_dir():
             notes.append(f"{paths.interaction}: no {PUSH_FILE}; the interaction is not used")
     residuals = Residuals(registration=registration, support=support, physics=physics,
-                          interaction=interaction, depth_map=depth_map, notes=tuple(notes))
+                          interaction=interaction, depth_map=depth_map, notes=tuple(notes),
+                          table_shape=table_shape_residual(inp, settings.table_shape_sigma_m))
     return Measured(residuals, stage, qualities, inp, keep)
 
 

@@ -26,6 +26,8 @@ class DepthBiasEffect(Effect):
     """``z_observed = s * z_true + o``; which of ``s``, ``o`` are free is per instance."""
 
     level = "input"
+    evidence_block = "registration"
+    interacts_with = frozenset({"camera_rotation", "table_tilt", "lens_distortion"})
 
     def __init__(self, name: str, fit_scale: bool, fit_offset: bool, preference: int):
         self.name = name
