@@ -439,6 +439,7 @@ def main() -> None:
     ap.add_argument("--cases", default=",".join(c for c in CASES if c != "clean"))
     ap.add_argument("--seeds", type=int, default=6, help="scenes per case")
     ap.add_argument("--clean", type=int, default=20, help="clean scenes")
+    ap.add_argument("--clean-from", type=int, default=0, help="first clean scene's seed")
     ap.add_argument("--count", type=int, default=0,
                     help="objects per scene (0: cycle through 3, 4, 5, 6 with the seed)")
     ap.add_argument("--size", default="640x480", help="image size WxH")
@@ -447,11 +448,13 @@ def main() -> None:
     ap.add_argument("--oracle", action="store_true",
                     help="also run the COM and friction cases on the true geometry")
     ap.add_argument("--table-only", action="store_true", help="only rebuild the table")
+    ap.add_argument("--skip-done", action="store_true",
+                    help="leave out scenes that already have a result")
     ap.add_argument("--out", type=Path, default=None, help="markdown file to update")
     args = ap.parse_args()
     size = tuple(int(v) for v in args.size.lower().split("x"))
 
-    jobs = [("clean", s, False) for s in range(args.clean)]
+    jobs = [("clean", s, False) for s in range(args.clean_from, args.clean)]
     jobs += [(c, s, False) for c in args.cases.split(",") if c for s in range(args.seeds)]
     if args.oracle:
         jobs += [(c, s, True) for c in args.cases.split(",") if c in ORACLE_CASES
@@ -460,7 +463,7 @@ def main() -> None:
     for case, seed, oracle in jobs:
         scene = args.root / f"{case}_s{seed}"
         result = scene / ("bench_diagnose_oracle.json" if oracle else "bench_diagnose.json")
-        if not args.table_only:
+        if not args.table_only and not (args.skip_done and result.is_file()):
             t0 = time.perf_counter()
             scene = make_scene(args.root, case, seed, args.count, size)
             if oracle:
