@@ -14,9 +14,11 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from r2s.console import print_table
 from r2s.errors import R2SError
+from r2s.io.atomic import atomic_write_text
+from r2s.io.manifest import load_manifest
 from r2s.io.paths import ScenePaths
-from r2s.stages.manifest import load_manifest
 
 COLUMNS: tuple[tuple[str, str, str], ...] = (
     # (header, key in the aggregate, format)
@@ -81,9 +83,6 @@ def markdown_header() -> str:
 def aggregate_metrics(scene_dirs: Sequence[Path], out: Optional[Path] = None,
                       label: str = "r2s") -> Aggregate:
     """CLI helper: print the pooled table and optionally write it as markdown."""
-    from r2s.console import print_table
-    from r2s.io.atomic import atomic_write_text
-
     agg = aggregate(scene_dirs)
     rows = [[h, fmt.format(agg.values[k]) if np.isfinite(agg.values[k]) else "n/a"]
             for h, k, fmt in COLUMNS]

@@ -19,16 +19,14 @@ app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="r2s: a physically consistent simulation twin of a cluttered tabletop "
                        "from one RGB-D image and instance masks.")
 
-SET_HELP = "Stage option as key=value (repeatable); see the list below."
+SET_HELP = ("Stage option as key=value (repeatable), applied to the options the stage last ran "
+            "with (else the defaults); see the list below.")
 
 
 def _options_epilog(stage_name: str) -> str:
-    from r2s.stages.registry import get_stage
+    from r2s.runner.registry import get_stage  # imports the stage (and torch): --help only
 
-    try:
-        spec = get_stage(stage_name)
-    except ModuleNotFoundError:
-        return ""
+    spec = get_stage(stage_name)
     lines = ["Options for --set key=value:\n\n"]
     for name, fld in spec.options_type.model_fields.items():
         lines.append(f"{name} (default {fld.default!r}): {fld.description or ''}\n\n")
@@ -50,7 +48,7 @@ def _make_stage_command(stage_name: str, summary: str) -> Callable:
         scene_dir: Path = typer.Argument(..., help="Scene directory (holds input/)."),
         set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
     ) -> None:
-        from r2s.pipeline import run_single_stage
+        from r2s.runner.pipeline import run_single_stage
 
         run_single_stage(scene_dir, stage_name, _parse_sets(set_))
 
@@ -87,9 +85,11 @@ def cmd_physopt(
                                                           "the objects it supports."),
     set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
 ) -> None:
-    from r2s.pipeline import run_single_stage
+    from r2s.runner.pipeline import run_single_stage
 
     overrides = _parse_sets(set_)
+    # ``--only`` is one run's choice: without it, the whole scene (not a recorded --only)
+    overrides.setdefault("only", "null" if only is None else str(only))
     if only is not None:
         overrides["only"] = str(only)
     run_single_stage(scene_dir, "physopt", overrides)
@@ -105,7 +105,7 @@ def cmd_evaluate(
                                "the same as --set engine=..."),
     set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
 ) -> None:
-    from r2s.pipeline import run_single_stage
+    from r2s.runner.pipeline import run_single_stage
 
     overrides = _parse_sets(set_)
     if engine is not None:
@@ -123,7 +123,7 @@ def run(
                                              help="stage.key=value option (repeatable)."),
 ) -> None:
     """Run every stage whose inputs or options changed, and skip the rest."""
-    from r2s.pipeline import run_pipeline
+    from r2s.runner.pipeline import run_pipeline
 
     run_pipeline(scene_dir, force=force, until=until, skip=list(skip or []),
                  overrides=_parse_sets(set_))

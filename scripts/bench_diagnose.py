@@ -37,9 +37,9 @@ sys.path.insert(0, str(REPO / "scripts"))
 
 from doc_block import write_generated_block  # noqa: E402
 from r2s.io.paths import ScenePaths  # noqa: E402
-from r2s.pipeline import build_options  # noqa: E402
-from r2s.stages.base import run_stage  # noqa: E402
-from r2s.stages.registry import available, get_stage  # noqa: E402
+from r2s.runner.pipeline import build_options  # noqa: E402
+from r2s.runner.base import run_stage  # noqa: E402
+from r2s.runner.registry import get_stage  # noqa: E402
 
 ORACLE_CASES = ("com_offset", "friction")
 """Cases also run with the true geometry (``--oracle``): physical effects need a
@@ -144,7 +144,7 @@ def gt_world(scene: Path, com_override: Optional[dict] = None):
                            np.asarray(com_override.get(o.id, o.com_in_object)), o.friction)
                for o in gt.objects]
     return gt, world_spec(objects, gt.support.point, gt.support.normal, gt.support.friction,
-                          paths.root / ".cache" / "convex")
+                          paths.convex_cache)
 
 
 def com_offset_observable(scene: Path) -> bool:
@@ -213,7 +213,7 @@ def oracle_geometry(scene: Path) -> None:
 
     from r2s.io.scene_json import read_gt_scene
     from r2s.io.state import ObjectState, SceneState, SupportPlane, write_state
-    from r2s.stages.base import StageOptions, StageSpec
+    from r2s.runner.base import StageOptions, StageSpec
 
     paths = ScenePaths(scene)
     gt = read_gt_scene(paths.gt_scene)
@@ -246,8 +246,6 @@ def oracle_geometry(scene: Path) -> None:
 
 def run_pipeline(scene: Path, stages: list[str]) -> None:
     for name in stages:
-        if not available(name):
-            continue
         spec = get_stage(name)
         t0 = time.perf_counter()
         res = run_stage(spec, scene, build_options(spec, None, {}), force=False)

@@ -28,7 +28,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from r2s.io.export_writer import ExportBody, write_export  # noqa: E402
-from r2s.stages.base import run_stage  # noqa: E402
+from r2s.runner.base import run_stage  # noqa: E402
 from r2s.stages.evaluate import SCENE_KEYS, STAGE, Options  # noqa: E402
 
 SEED_DEMO = REPO.parent / "shared" / "seed_demo" / "ycb5"
@@ -84,7 +84,7 @@ def ycb5(root: Path) -> Path | None:
     if not SEED_DEMO.is_dir():
         return None
     shutil.copytree(SEED_DEMO, root)
-    from r2s.stages.registry import get_stage
+    from r2s.runner.registry import get_stage
 
     export = get_stage("export")
     t0 = time.perf_counter()

@@ -24,8 +24,8 @@ from scipy.spatial.transform import Rotation
 from r2s.io.paths import ScenePaths
 from r2s.io.state import ObjectState, SceneState, SupportPlane, write_state
 from r2s.stages import geomopt, graph
-from r2s.stages.base import run_stage
-from r2s.stages.manifest import StageRecord, load_manifest, save_manifest
+from r2s.runner.base import run_stage
+from r2s.io.manifest import StageRecord, load_manifest, save_manifest
 
 
 def _pose(centre, rotation=None) -> np.ndarray:

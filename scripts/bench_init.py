@@ -33,7 +33,7 @@ sys.path.insert(0, str(REPO / "tests"))  # the ray-cast scene writer of the init
 from helpers_init import SynthObject, pose, pose_error, rotation, write_input_scene  # noqa: E402
 from r2s.io.mesh_io import load_mesh  # noqa: E402
 from r2s.io.state import read_state  # noqa: E402
-from r2s.stages.base import run_stage  # noqa: E402
+from r2s.runner.base import run_stage  # noqa: E402
 from r2s.stages.init import STAGE, Options  # noqa: E402
 
 SEED_DEMO = REPO.parent / "shared" / "seed_demo" / "ycb5"

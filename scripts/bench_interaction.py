@@ -39,9 +39,9 @@ sys.path.insert(0, str(REPO / "scripts"))
 from bench import METHOD_STAGES, synth_scenes  # noqa: E402
 from doc_block import write_generated_block  # noqa: E402
 from r2s.io.paths import ScenePaths  # noqa: E402
-from r2s.pipeline import build_options  # noqa: E402
-from r2s.stages.base import run_stage  # noqa: E402
-from r2s.stages.registry import get_stage  # noqa: E402
+from r2s.runner.pipeline import build_options  # noqa: E402
+from r2s.runner.base import run_stage  # noqa: E402
+from r2s.runner.registry import get_stage  # noqa: E402
 
 RESULTS = "bench_interaction"
 

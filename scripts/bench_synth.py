@@ -27,9 +27,9 @@ def judge(scene: Path) -> tuple[int, int]:
     """Run export (source=gt) and evaluate on a scene; (stable objects, objects)."""
     import json
 
-    from r2s.pipeline import build_options
-    from r2s.stages.base import run_stage
-    from r2s.stages.registry import get_stage
+    from r2s.runner.pipeline import build_options
+    from r2s.runner.base import run_stage
+    from r2s.runner.registry import get_stage
 
     export, evaluate = get_stage("export"), get_stage("evaluate")
     run_stage(export, scene, build_options(export, None, {"source": "gt"}), force=True)

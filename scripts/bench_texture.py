@@ -25,7 +25,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 
-from r2s.stages.base import run_stage  # noqa: E402
+from r2s.runner.base import run_stage  # noqa: E402
 from r2s.stages.texture import STAGE, Options  # noqa: E402
 
 

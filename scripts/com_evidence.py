@@ -52,8 +52,7 @@ def rollout(paths: ScenePaths, stage: str, uniform: bool) -> str:
         objects = [replace(o, com_in_object=None, friction=None, mass_kg=None) for o in objects]
     ex = export_options(paths)
     spec = world_spec(objects, state.support.point, state.support.normal, state.support.friction,
-                      paths.root / ".cache" / "convex", ex["density_kg_m3"],
-                      ex["default_friction"], ex["convex_threshold"], ex["max_convex_pieces"])
+                      paths.convex_cache, ex.density_kg_m3, ex.default_friction, ex.convex)
     phys = physics_residual(spec, np.asarray(state.gravity), {o.id: True for o in objects}, 1.0,
                             0.015, float(np.radians(5.0)), 4.0)
     cells = [f"{i}: {m.translation_norm_m * 1000:.0f} mm / {np.degrees(m.angle_rad):.0f} deg"

@@ -14,7 +14,7 @@ import trimesh
 
 from r2s.io.paths import ScenePaths
 from r2s.io.state import ObjectState, SceneState, SupportPlane, write_state
-from r2s.stages.manifest import StageRecord, load_manifest, save_manifest
+from r2s.io.manifest import StageRecord, load_manifest, save_manifest
 
 
 def pose(translation: Sequence[float] = (0, 0, 0), rotation: Optional[np.ndarray] = None) -> np.ndarray:

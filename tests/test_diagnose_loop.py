@@ -27,9 +27,9 @@ from r2s.diagnose.stats.structure_test import test_structure as structure_test
 from r2s.geometry.camera import intrinsics, look_at
 from r2s.geometry.lens import (distort_image, distort_normalised, undistort_image,
                                undistort_normalised)
-from r2s.stages.base import run_stage
-from r2s.stages.manifest import load_manifest
-from r2s.stages.registry import get_stage
+from r2s.runner.base import run_stage
+from r2s.io.manifest import load_manifest
+from r2s.runner.registry import get_stage
 
 W, H = 320, 240
 K = intrinsics(W, H, 50.0)
@@ -194,7 +194,7 @@ def test_a_step_whose_rerun_does_not_lower_its_claim_is_reverted():
 # ---- the stage on the hand-made scene ---------------------------------------------------
 
 def _diagnose(tmp_path, **effects) -> tuple:
-    from r2s.pipeline import build_options
+    from r2s.runner.pipeline import build_options
 
     scene = write_scene(tmp_path / "scene", **effects)
     run_stage(get_stage("init"), scene)
@@ -226,7 +226,7 @@ def test_two_injected_effects_are_both_recovered(tmp_path):
 def test_clean_scene_with_large_prior_scale_errors_applies_nothing(tmp_path):
     """Priors 6 %, 1 %, 5 % too large and 2 % too small: their mean (a 2.5 % scale) is
     what a depth scale would look like, but their spread says it is noise."""
-    from r2s.pipeline import build_options
+    from r2s.runner.pipeline import build_options
 
     scene, rep = _diagnose(tmp_path, prior_scales={1: 1.06, 2: 1.01, 3: 1.05, 4: 0.98})
     reg = rep["structure_before"]["registration"]

@@ -28,16 +28,16 @@ from helpers_state import box, write_init_state
 from r2s.diagnose.data import Residuals
 from r2s.diagnose.effects import get_effect
 from r2s.diagnose.measure.observe import support_residual
-from r2s.diagnose.model import UnknownEffectError, corrected_state, model_part, with_effect
+from r2s.scene_model import UnknownEffectError, corrected_state, model_part, with_effect
 from r2s.errors import R2SError
 from r2s.geometry.camera import backproject
 from r2s.io.input_scene import load_input
 from r2s.io.paths import ScenePaths
 from r2s.io.state import read_state
-from r2s.pipeline import build_options, run_pipeline
-from r2s.stages.base import model_hashes, run_stage, staleness
-from r2s.stages.manifest import Manifest, load_manifest, save_manifest
-from r2s.stages.registry import get_stage
+from r2s.runner.pipeline import build_options, run_pipeline
+from r2s.runner.base import model_hashes, run_stage, staleness
+from r2s.io.manifest import Manifest, load_manifest, save_manifest
+from r2s.runner.registry import get_stage
 
 G = np.array([0.0, 0.0, -9.81])
 FAST = {"physopt.use_diffsim": "false", "physopt.max_rounds": "1"}

@@ -14,9 +14,9 @@ import pytest
 
 from conftest import snapshot
 from helpers_diagnose import write_scene
-from r2s.stages.base import run_stage
-from r2s.stages.manifest import load_manifest
-from r2s.stages.registry import get_stage
+from r2s.runner.base import run_stage
+from r2s.io.manifest import load_manifest
+from r2s.runner.registry import get_stage
 
 pytestmark = pytest.mark.slow
 
@@ -34,7 +34,7 @@ def _report(scene) -> dict:
 def test_clean_scene_has_no_effect_and_is_left_alone(tmp_path):
     scene = _prepare(tmp_path)
     before_input, before_init = snapshot(scene / "input"), snapshot(scene / "init")
-    from r2s.pipeline import build_options
+    from r2s.runner.pipeline import build_options
 
     spec = get_stage("diagnose")
     result = run_stage(spec, scene, build_options(spec, None, {"apply": "true"}))
@@ -51,7 +51,7 @@ def test_clean_scene_has_no_effect_and_is_left_alone(tmp_path):
 
 def test_depth_scale_is_found_fitted_applied_and_reduces_the_error(tmp_path):
     scene = _prepare(tmp_path, depth_scale=1.03)
-    from r2s.pipeline import build_options
+    from r2s.runner.pipeline import build_options
 
     spec = get_stage("diagnose")
     run_stage(spec, scene, build_options(spec, None, {"apply": "true"}))

@@ -18,7 +18,7 @@ from r2s.errors import InputError, StageError
 from r2s.io.input_scene import load_camera
 from r2s.io.mesh_io import load_mesh
 from r2s.io.scene_json import read_gt_scene
-from r2s.stages.base import run_stage
+from r2s.runner.base import run_stage
 from r2s.stages.evaluate import SCENE_KEYS, STAGE, Options
 from r2s.sim.pybullet_bodies import connect_direct
 from r2s.sim.pybullet_scene import load_export_scene

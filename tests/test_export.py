@@ -13,7 +13,7 @@ import trimesh
 
 from r2s.geometry.mass_properties import mass_properties
 from r2s.io.mesh_io import save_mesh
-from r2s.stages.base import run_stage
+from r2s.runner.base import run_stage
 from r2s.stages.export import STAGE as EXPORT, Options as ExportOptions
 
 

@@ -17,7 +17,7 @@ from r2s.geometry.sdf import compute_sdf
 from r2s.io.sdf_io import load_sdf
 from r2s.io.state import read_state
 from r2s.stages import geomopt, graph
-from r2s.stages.base import run_stage
+from r2s.runner.base import run_stage
 from tests.helpers_state import box, write_init_state
 from tests.test_graph import graph_of
 

@@ -8,7 +8,7 @@ import trimesh
 
 from r2s.graph.build import GraphParams, PosedObject, build_contact_graph
 from r2s.graph.polygon import contains, convex_hull_2d, convex_overlap, distance_to_polygon
-from r2s.stages.base import run_stage
+from r2s.runner.base import run_stage
 from r2s.stages.graph import STAGE, read_contact_graph
 from tests.helpers_state import box, rot_x, rot_y, write_init_state
 

@@ -16,7 +16,7 @@ from helpers_init import SynthObject, pose, pose_error, rotation, write_input_sc
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import ScenePaths
 from r2s.io.state import read_state
-from r2s.stages.base import run_stage
+from r2s.runner.base import run_stage
 from r2s.stages.init import STAGE, Options
 
 

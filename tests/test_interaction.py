@@ -14,7 +14,7 @@ from r2s.errors import InputError
 from r2s.interaction.declutter import declutter
 from r2s.interaction.predict import predict
 from r2s.io.mesh_io import save_mesh
-from r2s.stages.base import run_stage
+from r2s.runner.base import run_stage
 from r2s.stages.export import STAGE as EXPORT, Options as ExportOptions
 
 

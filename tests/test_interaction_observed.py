@@ -18,7 +18,7 @@ from PIL import Image
 from scipy.spatial.transform import Rotation
 
 from conftest import write_tiny_input
-from r2s.interaction.ground_truth import export_ground_truth
+from r2s.sim.export_scene import export_ground_truth
 from r2s.interaction.predict import predict
 from r2s.interaction.push import replay_push
 from r2s.interaction.track import track_objects
@@ -31,7 +31,7 @@ from r2s.metrics.push_prediction import (motion_error, observed_points, push_ucd
                                          unilateral_chamfer_mm)
 from r2s.sim.pybullet_bodies import connect_direct
 from r2s.sim.pybullet_scene import load_export_scene
-from r2s.stages.base import run_stage
+from r2s.runner.base import run_stage
 from r2s.stages.export import STAGE as EXPORT, Options as ExportOptions
 from r2s.synth.generate import SynthOptions, synthesize
 from r2s.synth.push import PushSettings

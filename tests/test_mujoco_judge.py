@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from r2s.stages.base import run_stage
+from r2s.runner.base import run_stage
 from r2s.stages.evaluate import STAGE as EVALUATE, Options as EvalOptions
 from r2s.stages.export import STAGE as EXPORT, Options as ExportOptions
 from test_export import _gt_scene
@@ -48,11 +48,11 @@ def test_cli_engine_option_is_the_engine_option(tmp_path: Path, monkeypatch):
     """``r2s evaluate SCENE --engine mujoco`` runs evaluate with engine=mujoco."""
     from typer.testing import CliRunner
 
-    import r2s.pipeline
+    import r2s.runner.pipeline
     from r2s.cli import app
 
     calls = []
-    monkeypatch.setattr(r2s.pipeline, "run_single_stage",
+    monkeypatch.setattr(r2s.runner.pipeline, "run_single_stage",
                         lambda scene, stage, overrides: calls.append((stage, overrides)))
     result = CliRunner().invoke(app, ["evaluate", str(tmp_path), "--engine", "mujoco",
                                       "--set", "render=false"])

@@ -14,8 +14,8 @@ from r2s.io.mesh_io import save_mesh
 from r2s.io.state import ObjectState, SceneState, SupportPlane, read_state, write_state
 from r2s.physopt.hierarchy import descendants, order_root_to_leaves
 from r2s.physopt.pybullet_world import SimBody, build_world, depenetrate, penetrations
-from r2s.stages.base import run_stage
-from r2s.stages.manifest import StageRecord, load_manifest, save_manifest
+from r2s.runner.base import run_stage
+from r2s.io.manifest import StageRecord, load_manifest, save_manifest
 from r2s.stages.physopt import STAGE as PHYSOPT, Options as PhysOptions
 
 

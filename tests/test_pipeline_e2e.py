@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from conftest import SAMPLE_SCENE, snapshot
-from r2s.pipeline import run_pipeline
+from r2s.runner.pipeline import run_pipeline
 
 pytestmark = pytest.mark.slow
 

@@ -14,8 +14,8 @@ import pytest
 from pydantic import Field
 
 from r2s.io.atomic import commit_dir, recover_dir, scratch_dir
-from r2s.stages.base import StageContext, StageOptions, StageSpec, run_stage, staleness
-from r2s.stages.manifest import hash_path, load_manifest
+from r2s.runner.base import StageContext, StageOptions, StageSpec, run_stage, staleness
+from r2s.io.manifest import hash_path, load_manifest
 
 
 class CountOptions(StageOptions):
@@ -73,7 +73,7 @@ def test_killed_stage_leaves_previous_result_and_reruns_cleanly(tiny_scene: Path
     script = textwrap.dedent(f"""
         import time
         from pathlib import Path
-        from r2s.stages.base import StageSpec, run_stage
+        from r2s.runner.base import StageSpec, run_stage
         from tests.test_stage_machinery import CountOptions, _inputs
         def slow(ctx):
             (ctx.out_dir / "result.txt").write_text("partial")
@@ -120,8 +120,8 @@ def test_downstream_reads_the_latest_current_state(tmp_path: Path):
     """A rerun of init that reproduces its output keeps geomopt's result current (it is
     read, although init ran last); one that changes its output makes geomopt stale."""
     from r2s.io.paths import ScenePaths
-    from r2s.stages.manifest import Manifest, StageRecord
-    from r2s.stages.select import latest_state_stage
+    from r2s.io.manifest import Manifest, StageRecord
+    from r2s.io.latest_state import latest_state_stage
 
     paths = ScenePaths(tmp_path)
     for name in ("init", "geomopt"):

@@ -162,10 +162,10 @@ def test_clean_depth_matches_ray_cast_gt(clean: Path) -> None:
 def test_exported_gt_stays_at_rest(clean: Path) -> None:
     """gt -> r2s export (source=gt) -> PyBullet: the pieces are the verified ones and
     nothing moves 5 mm in 1 s."""
-    from r2s.pipeline import build_options
+    from r2s.runner.pipeline import build_options
     from r2s.sim.pybullet_scene import load_export_scene
-    from r2s.stages.base import run_stage
-    from r2s.stages.registry import get_stage
+    from r2s.runner.base import run_stage
+    from r2s.runner.registry import get_stage
 
     export = get_stage("export")
     run_stage(export, clean, build_options(export, None, {"source": "gt"}), force=True)

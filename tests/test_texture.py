@@ -19,7 +19,7 @@ from r2s.io.mesh_io import load_mesh, save_mesh
 from r2s.io.state import read_state
 from r2s.metrics.rendering import masked_psnr
 from r2s.render.shade import mesh_colour
-from r2s.stages.base import run_stage
+from r2s.runner.base import run_stage
 from r2s.stages.texture import STAGE, Options
 from r2s.texture.bake import bake_vertex_values, uv_raster
 from r2s.texture.refine import RefineOptions, refine_textures, seen_texels

@@ -5,6 +5,8 @@
   PyBullet rollout, observed push);
 - :mod:`r2s.diagnose.effects`: the catalogue of candidate effects, one module each;
 - :mod:`r2s.diagnose.ranking`: BIC ranking against "no effect";
-- :mod:`r2s.diagnose.model`: the hooks other stages call to use the kept effects;
-- :mod:`r2s.diagnose.rerun`: the before/after comparison on a copy of the scene.
+
+Elsewhere, because they are not diagnose's to own: the hooks stages call to use the kept
+effects are :mod:`r2s.scene_model`; the before/after rerun of the pipeline on a copy of the
+scene is the runner's (:mod:`r2s.runner.rerun`).
 """

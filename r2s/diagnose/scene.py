@@ -10,12 +10,12 @@ and the before/after rerun call it); everything it calls works on loaded data.
 - interaction residual: ``input/interaction/push.json`` when present.
 
 Everything is measured on the input as the scene's model corrects it
-(:func:`r2s.diagnose.model.corrected_input`).
+(:func:`r2s.scene_model.corrected_input`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
@@ -25,18 +25,24 @@ from r2s.console import ProgressFn, silent_progress
 from r2s.diagnose.data import Residuals
 from r2s.diagnose.gt_errors import export_gt_errors, metrics_subset, state_gt_errors
 from r2s.diagnose.measure.interaction import read_push
-from r2s.diagnose.measure.observe import (FitQuality, ObjectModel, depth_residual_map,
+from r2s.diagnose.measure.observe import (ObjectModel, depth_residual_map,
                                           interaction_residual, measure_fit_qualities,
                                           physics_residual, registration_residual,
                                           support_residual, table_shape_residual, world_spec)
-from r2s.diagnose.model import corrected_input, corrected_state
+from r2s.scene_model import corrected_input, corrected_state
 from r2s.errors import StageError
+from r2s.interaction.track import track_objects
 from r2s.io.input_scene import InputScene, load_input, read_json_file
+from r2s.io.interaction_input import load_observed_push
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import ScenePaths
 from r2s.io.scene_json import read_export_scene, read_gt_scene
+from r2s.metrics.push_prediction import observed_points
 from r2s.io.state import SceneState, read_state
-from r2s.stages.manifest import load_manifest
+from r2s.io.latest_state import GEOMETRY_STAGES, finished, latest_state_stage
+from r2s.io.manifest import load_manifest
+from r2s.io.recorded_options import recorded_options
+from r2s.sim.export_scene import BodyParams
 
 PUSH_FILE = "push.json"
 
@@ -77,21 +83,11 @@ class Measured:
     keep: list = field(default_factory=list)  # temporary folders that must outlive residuals
 
 
-def _done(paths: ScenePaths, stage: str) -> bool:
-    rec = load_manifest(paths.manifest).stages.get(stage)
-    return rec is not None and rec.status == "done" and paths.state(stage).is_file()
-
-
 def physics_stage(paths: ScenePaths, source: str) -> str:
-    """The state the rollout uses: ``source``, or geomopt / init for ``auto``."""
-    if source != "auto":
-        if not _done(paths, source):
-            raise StageError(f"stage '{source}' has no result in {paths.root}; run it first")
-        return source
-    for name in ("geomopt", "init"):
-        if _done(paths, name):
-            return name
-    raise StageError(f"{paths.root}: no reconstruction yet; run 'r2s init' first")
+    """The state the rollout uses: ``source``, or the latest current of geomopt / init
+    for ``auto`` (before physopt has tuned physics to hide the residual)."""
+    return latest_state_stage(paths, load_manifest(paths.manifest), source,
+                              candidates=("init", "geomopt"))
 
 
 def tracked_motion(paths: ScenePaths, model: Optional[Mapping[str, Any]],
@@ -101,12 +97,6 @@ def tracked_motion(paths: ScenePaths, model: Optional[Mapping[str, Any]],
     ``input/interaction/``'s images after the push against the image before
     (:mod:`r2s.interaction.track`), both corrected by the model's input-level effects;
     empty when the images after are not given."""
-    from dataclasses import replace
-
-    from r2s.interaction.track import track_objects
-    from r2s.io.interaction_input import load_observed_push
-    from r2s.metrics.push_prediction import observed_points
-
     after = load_observed_push(paths.root)
     if after is None or after.depth_after_m is None or after.masks_after is None:
         return {}, {}
@@ -134,23 +124,15 @@ def tracked_motion(paths: ScenePaths, model: Optional[Mapping[str, Any]],
 
 def interaction_stage(paths: ScenePaths, source: str, physics_stage_name: str) -> str:
     """The state the observed push is simulated on (see ``MeasureSettings``)."""
+    manifest = load_manifest(paths.manifest)
     if source == "auto":
-        return "physopt" if _done(paths, "physopt") else physics_stage_name
-    if not _done(paths, source):
-        raise StageError(f"stage '{source}' has no result in {paths.root}; run it first")
-    return source
+        return "physopt" if finished(paths, manifest, "physopt") else physics_stage_name
+    return latest_state_stage(paths, manifest, source)
 
 
-def export_options(paths: ScenePaths) -> dict:
-    """The export stage's options as recorded in the manifest, else its defaults."""
-    from r2s.stages.registry import get_stage
-
-    spec = get_stage("export")
-    out = spec.options_type().model_dump()
-    rec = load_manifest(paths.manifest).stages.get("export")
-    if rec is not None and rec.options:
-        out.update({k: v for k, v in rec.options.items() if k in out})
-    return out
+def export_options(paths: ScenePaths) -> BodyParams:
+    """The export stage's body parameters as recorded in the manifest, else its defaults."""
+    return recorded_options(load_manifest(paths.manifest), "export", BodyParams)
 
 
 def load_objects(paths: ScenePaths, stage: str, state: SceneState, inp: InputScene
@@ -179,7 +161,7 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
     paths = ScenePaths(Path(scene_dir))
     if model is None:
         model = load_manifest(paths.manifest).model
-    if not _done(paths, "init"):
+    if not finished(paths, load_manifest(paths.manifest), "init"):
         raise StageError(f"{paths.root}: diagnose needs the 'init' stage; run 'r2s init' first")
     inp = corrected_input(load_input(paths.root), model)
     init_state = read_state(paths.stage_dir("init"))
@@ -207,10 +189,9 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
 
         def spec_of(state: SceneState, objects: list[ObjectModel]):
             return world_spec(objects, state.support.point, state.support.normal,
-                              state.support.friction, paths.root / ".cache" / "convex",
-                              settings.density_kg_m3 or ex["density_kg_m3"],
-                              settings.default_friction or ex["default_friction"],
-                              ex["convex_threshold"], ex["max_convex_pieces"])
+                              state.support.friction, paths.convex_cache,
+                              settings.density_kg_m3 or ex.density_kg_m3,
+                              settings.default_friction or ex.default_friction, ex.convex)
 
         spec = spec_of(state, objects)
         keep.append(spec)
@@ -254,10 +235,11 @@ def _centroid(mesh_path: Path, world_from_object: np.ndarray) -> np.ndarray:
 
 
 def _latest_geometry_stage(paths: ScenePaths) -> Optional[str]:
-    for name in ("physopt", "geomopt", "init"):
-        if _done(paths, name):
-            return name
-    return None
+    try:
+        return latest_state_stage(paths, load_manifest(paths.manifest),
+                                  candidates=GEOMETRY_STAGES)
+    except StageError:
+        return None
 
 
 def scene_gt_errors(scene_dir: Path) -> Optional[dict]:

@@ -36,17 +36,6 @@ def move_points(points_world: torch.Tensor, centres: torch.Tensor, rot: torch.Te
     return rel @ rot.transpose(1, 2) + (centres + trans)[:, None, :]
 
 
-def world_to_object(points_world: torch.Tensor, centres: torch.Tensor, rot: torch.Tensor,
-                    trans: torch.Tensor, init_rot: torch.Tensor, init_trans: torch.Tensor
-                    ) -> torch.Tensor:
-    """(Q, N, 3) world points into the optimised frames of Q objects (all args indexed per Q).
-
-    object_from_world = init^-1 A^-1, A^-1(p) = R^T (p - c - t) + c.
-    """
-    p = (points_world - (centres + trans)[:, None, :]) @ rot + centres[:, None, :]
-    return (p - init_trans[:, None, :]) @ init_rot
-
-
 def updated_poses(init_world_from_object: np.ndarray, centres: np.ndarray, omega: np.ndarray,
                   trans: np.ndarray) -> np.ndarray:
     """(M, 4, 4) world_from_object after the update (numpy, float64)."""

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 
-from r2s.graph.polygon import convex_hull_2d, polygon_area
+from r2s.graph.polygon import convex_hull_2d
 
 
 @dataclass(frozen=True)
@@ -149,7 +149,3 @@ def footprint_radius_m(node: ObjectNode, frame: GravityFrame) -> float:
     if len(node.footprint_uv_m) == 0:
         return 0.0
     return float(np.max(np.linalg.norm(node.footprint_uv_m - c, axis=1)))
-
-
-def footprint_area_m2(node: ObjectNode) -> float:
-    return polygon_area(node.footprint_uv_m)

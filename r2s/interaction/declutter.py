@@ -19,10 +19,11 @@ import numpy as np
 import pybullet as pb
 
 from r2s.errors import StageError
-from r2s.interaction.ground_truth import export_ground_truth
 from r2s.io.atomic import atomic_write_json, commit_dir, recover_dir, scratch_dir
 from r2s.io.paths import ScenePaths
+from r2s.metrics.stability import rotation_angle_deg
 from r2s.physopt.hierarchy import parents_from_graph
+from r2s.sim.export_scene import export_ground_truth
 from r2s.sim.pybullet_bodies import body_world_from_object, connect_direct
 from r2s.sim.pybullet_scene import load_export_scene
 
@@ -38,8 +39,6 @@ def _poses(client: int, loaded, ids) -> dict[int, np.ndarray]:
 
 def _disturbance(client: int, loaded, remaining: list[int]) -> tuple[float, float]:
     """Largest translation (m) and rotation (deg) of ``remaining`` over SETTLE_S."""
-    from r2s.metrics.stability import rotation_angle_deg
-
     start = _poses(client, loaded, remaining)
     for _ in range(int(SETTLE_S * 240)):
         pb.stepSimulation(physicsClientId=client)

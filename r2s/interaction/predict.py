@@ -23,7 +23,7 @@ import pybullet as pb
 from PIL import Image
 
 from r2s.errors import StageError
-from r2s.interaction.action import PushAction, read_action
+from r2s.io.push_action import PushAction, read_action
 from r2s.interaction.push import replay_push
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json, commit_dir, recover_dir, scratch_dir
 from r2s.io.input_scene import load_camera

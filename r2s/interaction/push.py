@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pybullet as pb
 
-from r2s.interaction.action import PushAction
+from r2s.io.push_action import PushAction
 from r2s.sim.pybullet_bodies import TIME_STEP_S, body_world_from_object
 from r2s.sim.pybullet_scene import LoadedScene
 

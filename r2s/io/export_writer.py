@@ -23,6 +23,7 @@ from r2s.io.atomic import atomic_write_json, atomic_write_text
 from r2s.io.mesh_io import save_mesh, untextured
 from r2s.io.mjcf import write_mjcf
 from r2s.io.urdf import urdf_text
+from r2s.io.paths import EXPORT_SCENE_FILE
 
 
 @dataclass
@@ -87,6 +88,6 @@ def write_export(out_dir: Path, gravity: Sequence[float], support: dict,
         "support": support,
         "objects": objects,
     }
-    atomic_write_json(out_dir / "scene.json", scene)
+    atomic_write_json(out_dir / EXPORT_SCENE_FILE, scene)
     write_mjcf(out_dir, scene, {b.id: b.inertia_about_com for b in bodies})
     return scene

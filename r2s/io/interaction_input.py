@@ -4,7 +4,7 @@
 
     input/interaction/
       push.json          the push that was made, in r2s predict's action format
-                         (r2s.interaction.action); required
+                         (r2s.io.push_action); required
       depth_after.png    depth seen after the push, like input/depth.png (same camera,
        or .npy           same size, same depth_unit_m); optional
       masks_after.png    instance ids after the push, the ids of input/masks.png; optional,
@@ -28,7 +28,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from r2s.errors import InputError
-from r2s.interaction.action import PushAction, read_action
+from r2s.io.push_action import PushAction, read_action
 from r2s.io.input_scene import (_first_error, load_camera, load_depth_file, load_masks,
                                 read_json_file)
 from r2s.io.paths import ScenePaths

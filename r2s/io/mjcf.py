@@ -17,6 +17,9 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from r2s.io.atomic import atomic_write_text
+from r2s.io.paths import EXPORT_MJCF_FILE
+
 
 def _vec(v: Sequence[float]) -> str:
     return " ".join(f"{float(x):.9g}" for x in v)
@@ -84,8 +87,6 @@ def mjcf_text(scene: dict, inertias: dict[int, np.ndarray]) -> str:
 
 
 def write_mjcf(export_dir: Path, scene: dict, inertias: dict[int, np.ndarray]) -> Path:
-    from r2s.io.atomic import atomic_write_text
-
-    path = Path(export_dir) / "scene.xml"
+    path = Path(export_dir) / EXPORT_MJCF_FILE
     atomic_write_text(path, mjcf_text(scene, inertias))
     return path

@@ -15,6 +15,7 @@ rest is r2s's own, one folder per stage)::
       evaluate/         metrics.json, rollout.png
       diagnose/         report.json, report.md, plots
       manifest.json     per stage: options, input/output hashes, timing, status
+      .cache/convex/    memo of convex decompositions (safe to delete)
 """
 
 from __future__ import annotations
@@ -22,10 +23,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-STAGE_NAMES: tuple[str, ...] = (
-    "init", "graph", "geomopt", "physopt", "texture", "export", "evaluate",
-)
-"""Pipeline order of the stages that ``r2s run`` drives. ``diagnose`` is run on demand."""
+# ---- files inside stage folders (a stage writes them into its scratch folder by name) ----
+STATE_FILE = "state.json"
+"""Every state stage's :class:`r2s.io.state.SceneState`."""
+CONTACT_GRAPH_FILE = "contact_graph.json"
+METRICS_FILE = "metrics.json"
+"""evaluate's (and texture's own photometric) metrics."""
+PHYSOPT_LOG_FILE = "log.json"
+GEOMOPT_LOSS_FILE = "loss.json"
+DIAGNOSE_REPORT_FILE = "report.json"
+EXPORT_SCENE_FILE = "scene.json"
+"""``export/scene.json`` (the contract) and ``gt/scene.json``."""
+EXPORT_MJCF_FILE = "scene.xml"
+CACHE_DIR = ".cache"
+CONVEX_CACHE_DIR = "convex"
 
 STATE_STAGES: tuple[str, ...] = ("init", "geomopt", "physopt", "texture")
 """Stages that write a :class:`r2s.io.state.SceneState` (poses, meshes, physics)."""
@@ -102,7 +113,7 @@ class ScenePaths:
 
     @property
     def gt_scene(self) -> Path:
-        return self.gt / "scene.json"
+        return self.gt / EXPORT_SCENE_FILE
 
     @property
     def gt_push(self) -> Path:
@@ -115,7 +126,7 @@ class ScenePaths:
 
     @property
     def export_scene(self) -> Path:
-        return self.export / "scene.json"
+        return self.export / EXPORT_SCENE_FILE
 
     # ---- r2s's own ----------------------------------------------------------------
     @property
@@ -127,12 +138,22 @@ class ScenePaths:
 
     def state(self, stage: str) -> Path:
         """``<stage>/state.json`` of a state-writing stage."""
-        return self.stage_dir(stage) / "state.json"
+        return self.stage_dir(stage) / STATE_FILE
+
+    @property
+    def cache(self) -> Path:
+        """``.cache/``: memos that are safe to delete (never hashed: a dot folder)."""
+        return self.root / CACHE_DIR
+
+    @property
+    def convex_cache(self) -> Path:
+        """``.cache/convex/``: convex pieces keyed by mesh and parameters."""
+        return self.cache / CONVEX_CACHE_DIR
 
     @property
     def contact_graph(self) -> Path:
-        return self.stage_dir("graph") / "contact_graph.json"
+        return self.stage_dir("graph") / CONTACT_GRAPH_FILE
 
     @property
     def metrics(self) -> Path:
-        return self.stage_dir("evaluate") / "metrics.json"
+        return self.stage_dir("evaluate") / METRICS_FILE

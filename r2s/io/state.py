@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from r2s.errors import StageError
 from r2s.io.atomic import atomic_write_json
 from r2s.io.input_scene import read_json_file
+from r2s.io.paths import STATE_FILE
 
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
 
@@ -78,7 +79,7 @@ class SceneState(BaseModel):
 
 def read_state(stage_dir: Path) -> SceneState:
     """Read ``stage_dir/state.json``; :class:`StageError` if it is missing or malformed."""
-    path = Path(stage_dir) / "state.json"
+    path = Path(stage_dir) / STATE_FILE
     if not path.is_file():
         raise StageError(f"{path}: missing; run the '{Path(stage_dir).name}' stage first")
     try:
@@ -88,4 +89,4 @@ def read_state(stage_dir: Path) -> SceneState:
 
 
 def write_state(stage_dir: Path, state: SceneState) -> None:
-    atomic_write_json(Path(stage_dir) / "state.json", state.model_dump())
+    atomic_write_json(Path(stage_dir) / STATE_FILE, state.model_dump())

@@ -4,26 +4,28 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
+from typing import Iterable, Optional
 
 import numpy as np
 
+from r2s.graph.schema import ContactGraph
+
 
 def parents_from_graph(graph_path: Path) -> Optional[dict[int, int]]:
-    """child id -> parent id (0 = the table) from ``graph/contact_graph.json``, or None."""
+    """child id -> parent id (0 = the table) from ``graph/contact_graph.json``, or None.
+
+    The support tree's edges (``in_tree``; :class:`r2s.graph.schema.SupportEdge`) give the
+    parents; a node's own ``parent`` field, where the graph records one, has the last word
+    (the graph stage writes both from the same choice).
+    """
     graph_path = Path(graph_path)
     if not graph_path.is_file():
         return None
-    data = json.loads(graph_path.read_text())
-    parents: dict[int, int] = {}
-    for edge in data.get("support_edges", []):
-        if edge.get("is_tree_edge", True) and "child" in edge and "parent" in edge:
-            child, parent = int(edge["child"]), int(edge["parent"])
-            if child not in parents or edge.get("is_tree_edge", False):
-                parents[child] = parent
-    for node in data.get("nodes", []):
-        if "id" in node and "parent" in node and node["parent"] is not None and int(node["id"]) != 0:
-            parents[int(node["id"])] = int(node["parent"])
+    graph = ContactGraph.model_validate(json.loads(graph_path.read_text()))
+    parents = {e.child: e.parent for e in graph.support_edges if e.in_tree}
+    for node in graph.nodes:
+        if node.parent is not None and node.id != graph.root:
+            parents[node.id] = node.parent
     return parents or None
 
 
@@ -58,6 +60,10 @@ def descendants(root: int, parents: dict[int, int]) -> set[int]:
     return out
 
 
-def lowest_point_heights(meshes_world: dict[int, np.ndarray]) -> dict[int, float]:
-    """Min z of each object's world vertices (sort key without a graph)."""
-    return {i: float(np.min(v[:, 2])) for i, v in meshes_world.items()}
+def lowest_points_m(objects: Iterable, meshes: dict) -> dict[int, float]:
+    """Height (world z, metres) of each object's lowest vertex: the order without a graph.
+
+    objects : items with ``id`` and ``pose`` (4, 4 world_from_object); meshes : id -> mesh.
+    """
+    return {o.id: float(np.min((o.pose[:3, :3] @ meshes[o.id].vertices.T).T[:, 2]
+                               + o.pose[2, 3])) for o in objects}

@@ -193,16 +193,6 @@ def depenetrate(world: World, order: Sequence[int], tolerance_m: float = 1.5e-3,
     return poses
 
 
-def support_centroid(world: World, body_id: int) -> np.ndarray | None:
-    """World centroid of the contact points between a body and everything else (None if
-    it touches nothing), after one collision pass at the current poses."""
-    pb.performCollisionDetection(physicsClientId=world.client)
-    pts = pb.getContactPoints(bodyA=world.body_ids[body_id], physicsClientId=world.client)
-    if not pts:
-        return None
-    return np.mean([p[5] for p in pts], axis=0)  # positionOnA
-
-
 def world_gravity(world: World) -> np.ndarray:
     """The gravity vector the world was built with (world frame, m/s^2)."""
     return np.asarray(world.gravity, dtype=float)

@@ -15,6 +15,7 @@ import numpy as np
 from r2s.errors import StageError
 from r2s.io.scene_json import read_export_scene
 from r2s.sim.rollout import Trajectory
+from r2s.io.paths import EXPORT_MJCF_FILE, EXPORT_SCENE_FILE
 
 
 def mujoco_rollout(export_dir: Path, duration_s: float = 3.0, record_hz: float = 60.0
@@ -25,10 +26,10 @@ def mujoco_rollout(export_dir: Path, duration_s: float = 3.0, record_hz: float =
     except ImportError:
         raise StageError("engine=mujoco needs the 'mujoco' package (pip install mujoco)") from None
     export_dir = Path(export_dir)
-    xml = export_dir / "scene.xml"
+    xml = export_dir / EXPORT_MJCF_FILE
     if not xml.is_file():
         raise StageError(f"{xml} is missing; rerun 'r2s export' to write the MJCF scene")
-    scene = read_export_scene(export_dir / "scene.json")
+    scene = read_export_scene(export_dir / EXPORT_SCENE_FILE)
     model = mujoco.MjModel.from_xml_path(str(xml))
     data = mujoco.MjData(model)
     ids = np.array([o.id for o in scene.objects])

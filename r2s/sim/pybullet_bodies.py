@@ -14,7 +14,6 @@ import numpy as np
 import pybullet as pb
 
 TIME_STEP_S = 1.0 / 240.0
-PLANE_HALF_EXTENT_M = 5.0
 
 
 def connect_direct() -> int:

@@ -16,6 +16,7 @@ import pybullet as pb
 from r2s.errors import InputError
 from r2s.io.scene_json import ExportScene, read_export_scene
 from r2s.sim.pybullet_bodies import add_rigid_body, add_support_plane, body_world_from_object
+from r2s.io.paths import EXPORT_SCENE_FILE
 
 
 @dataclass(frozen=True)
@@ -61,7 +62,7 @@ def load_export_scene(client: int, export_dir: Path) -> LoadedScene:
     piece, a collision file is missing, or an object id repeats.
     """
     export_dir = Path(export_dir)
-    scene_path = export_dir / "scene.json"
+    scene_path = export_dir / EXPORT_SCENE_FILE
     scene = read_export_scene(scene_path)
 
     pb.setGravity(*[float(g) for g in scene.gravity], physicsClientId=client)

@@ -1,1 +1,1 @@
-"""Pipeline stages. Each stage module defines ``STAGE = StageSpec(...)``; see :mod:`r2s.stages.base`."""
+"""Pipeline stages. Each stage module defines ``STAGE = StageSpec(...)``; see :mod:`r2s.runner.base`."""

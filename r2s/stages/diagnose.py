@@ -6,7 +6,7 @@
    :mod:`r2s.diagnose.ranking`.
 3. With an effect found, rerun the affected stages on a temporary copy of the scene with
    the effect in the model, and measure the residual and (with ``gt/``) the ground-truth
-   errors again: :mod:`r2s.diagnose.rerun`.
+   errors again: :mod:`r2s.runner.rerun`.
 4. Write ``diagnose/report.json``, ``report.md`` and ``residuals.png``. With
    ``apply=true`` the effect is kept in ``manifest.model["effects"]``: the stages that
    apply the model (init, texture, evaluate: input level; physopt, export: state level)
@@ -28,15 +28,15 @@ from r2s.diagnose.gravity import camera_or_table
 from r2s.diagnose.plots import residual_figure, structure_figure
 from r2s.diagnose.ranking import NoiseBar
 from r2s.diagnose.report import ReportInput, build_report, markdown
-from r2s.diagnose.rerun import model_with_fits
 from r2s.diagnose.scene import MeasureSettings
 from r2s.errors import R2SError
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
-from r2s.io.paths import ScenePaths
-from r2s.stages.base import StageContext, StageOptions, StageSpec, model_hashes
-from r2s.stages.manifest import Manifest, load_manifest, save_manifest
-from r2s.stages.diagnose_loop import LoopConfig, release, run_loop
-from r2s.stages.registry import PIPELINE, get_stage
+from r2s.io.manifest import Manifest, load_manifest, save_manifest
+from r2s.io.paths import DIAGNOSE_REPORT_FILE, ScenePaths
+from r2s.runner.base import StageContext, StageOptions, StageSpec, model_hashes
+from r2s.runner.diagnose_loop import LoopConfig, release, run_loop
+from r2s.runner.registry import PIPELINE, get_stage
+from r2s.runner.rerun import model_with_fits
 
 
 class Options(StageOptions):
@@ -193,7 +193,7 @@ def run(ctx: StageContext) -> dict:
         unexplained=loop.unexplained.summary() if loop.unexplained else None,
         gravity=camera_or_table(loop.rounds[0] if loop.rounds else None, kept,
                                 options.camera_prior_odds)))
-    atomic_write_json(ctx.out_dir / "report.json", report)
+    atomic_write_json(ctx.out_dir / DIAGNOSE_REPORT_FILE, report)
     atomic_write_text(ctx.out_dir / "report.md", markdown(report))
     if options.plots:
         title = (f"{paths.root.name}: " + (", ".join(report["decision"]) or "no effect"))

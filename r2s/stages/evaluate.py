@@ -27,12 +27,12 @@ from PIL import Image
 from pydantic import Field
 
 from r2s.console import ProgressFn
-from r2s.diagnose.model import corrected_camera
+from r2s.scene_model import corrected_camera
 from r2s.errors import StageError
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json
 from r2s.io.input_scene import load_camera, load_masks, load_rgb
 from r2s.io.mesh_io import load_mesh
-from r2s.io.paths import ScenePaths
+from r2s.io.paths import METRICS_FILE, ScenePaths
 from r2s.io.scene_json import ExportObject, GtScene, read_gt_scene
 from r2s.metrics.geometry import (centroid_error_mm, posed, rotation_error_deg, surface_metrics,
                                   volumetric_iou)
@@ -44,8 +44,8 @@ from r2s.sim.pybullet_bodies import connect_direct
 from r2s.sim.pybullet_scene import LoadedScene, load_export_scene
 from r2s.sim.render import colour_bodies, render_rgb, scaled_intrinsics, side_by_side
 from r2s.sim.rollout import Trajectory, rollout
-from r2s.stages.base import StageContext, StageOptions, StageSpec
-from r2s.stages.manifest import Manifest
+from r2s.runner.base import StageContext, StageOptions, StageSpec
+from r2s.io.manifest import Manifest
 
 SCENE_KEYS: tuple[str, ...] = (
     "stability_ratio", "settling_time_s", "mean_linear_speed_mps", "mean_angular_speed_radps",
@@ -257,7 +257,7 @@ def run(ctx: StageContext) -> dict:
 
     export_ids = {o.id for o in export_objects}
     gt_ids = {o.id for o in gt.objects} if gt is not None else set()
-    atomic_write_json(ctx.out_dir / "metrics.json", {
+    atomic_write_json(ctx.out_dir / METRICS_FILE, {
         "format": "r2s-metrics", "version": 1,
         **scene,
         "objects": objects,

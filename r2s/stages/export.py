@@ -5,7 +5,7 @@ It reads the latest state stage that has run (``source=auto``: texture > physopt
 the generator). Mass is volume x density where no stage estimated it; COM is the shape's
 centre of mass where none was estimated; collision geometry is a convex decomposition.
 A state is exported as the scene's model corrects it (COM shifts, friction, a tilted table
-kept by ``r2s diagnose --set apply=true``: :func:`r2s.diagnose.model.corrected_state`);
+kept by ``r2s diagnose --set apply=true``: :func:`r2s.scene_model.corrected_state`);
 the ground truth is exported as it is.
 """
 
@@ -17,29 +17,22 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from r2s.diagnose.model import corrected_state
+from r2s.scene_model import corrected_state
 from r2s.errors import StageError
-from r2s.geometry.convex_cache import cached_convex_decomposition
-from r2s.geometry.mass_properties import mass_properties
-from r2s.io.export_writer import ExportBody, write_export
-from r2s.io.mesh_io import load_mesh, welded
 from r2s.io.paths import ScenePaths
-from r2s.io.scene_json import read_gt_scene
 from r2s.io.state import read_state
-from r2s.stages.base import StageContext, StageOptions, StageSpec
-from r2s.stages.manifest import Manifest
-from r2s.stages.select import latest_state_stage
+from r2s.runner.base import StageContext, StageOptions, StageSpec
+from r2s.io.manifest import Manifest
+from r2s.io.latest_state import latest_state_stage
+from r2s.sim.export_scene import BodyParams, ObjectItem, build_and_write, gt_items
 
 
-class Options(StageOptions):
+class Options(StageOptions, BodyParams):
+    """The body parameters (:class:`r2s.sim.export_scene.BodyParams`) and the source."""
+
     source: Literal["auto", "init", "geomopt", "physopt", "texture", "gt"] = Field(
         "auto", description="Which result to export: the latest stage that ran, a named "
                             "stage, or gt (the ground truth, for judging the judge).")
-    density_kg_m3: float = Field(600.0, gt=0, description="Density where no mass is estimated.")
-    default_friction: float = Field(0.8, gt=0, description="Body friction where none is estimated.")
-    convex_threshold: float = Field(0.05, gt=0, description="CoACD concavity threshold.")
-    max_convex_pieces: int = Field(64, ge=1, description="Most convex pieces per object.")
-    restitution: float = Field(0.0, ge=0, le=1, description="Restitution of every body.")
 
 
 def _resolve_source(paths: ScenePaths, options: Options, manifest: Manifest) -> str:
@@ -58,30 +51,20 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
     return [paths.gt] if source == "gt" else [paths.stage_dir(source)]
 
 
-def _bodies_from_gt(paths: ScenePaths) -> tuple[list, dict, list[dict]]:
-    gt = read_gt_scene(paths.gt_scene)
-    items = []
-    for obj in gt.objects:
-        items.append(dict(id=obj.id, label=obj.label, mesh_path=paths.gt / obj.mesh,
-                          pose=np.asarray(obj.world_from_object), mass_kg=obj.mass_kg,
-                          com=np.asarray(obj.com_in_object), friction=obj.friction,
-                          extra={"source": "gt"}))
-    return gt.gravity, gt.support.model_dump(), items
-
-
 def _bodies_from_state(paths: ScenePaths, stage: str, model: dict
-                       ) -> tuple[list, dict, list[dict]]:
+                       ) -> tuple[list, dict, list[ObjectItem]]:
     state = corrected_state(read_state(paths.stage_dir(stage)), model)
     items = []
     known = set(type(state.objects[0]).model_fields) if state.objects else set()
     for obj in state.objects:
         extra = {k: v for k, v in obj.model_dump().items() if k not in known}
-        items.append(dict(id=obj.id, label=obj.label, mesh_path=paths.stage_dir(stage) / obj.mesh,
-                          pose=obj.pose, mass_kg=obj.mass_kg,
-                          com=None if obj.com_in_object is None else np.asarray(obj.com_in_object),
-                          friction=obj.friction, restitution=obj.restitution,
-                          extra={"source": obj.source, "stage": stage,
-                                 **{k: v for k, v in extra.items() if _scalar(v)}}))
+        items.append(ObjectItem(
+            id=obj.id, label=obj.label, mesh_path=paths.stage_dir(stage) / obj.mesh,
+            pose=obj.pose, mass_kg=obj.mass_kg,
+            com=None if obj.com_in_object is None else np.asarray(obj.com_in_object),
+            friction=obj.friction, restitution=obj.restitution,
+            extra={"source": obj.source, "stage": stage,
+                   **{k: v for k, v in extra.items() if _scalar(v)}}))
     return state.gravity, state.support.model_dump(), items
 
 
@@ -93,33 +76,11 @@ def run(ctx: StageContext) -> dict:
     paths, opt = ctx.paths, ctx.options
     source = _resolve_source(paths, opt, ctx.manifest)
     if source == "gt":
-        gravity, support, items = _bodies_from_gt(paths)
+        gravity, support, items = gt_items(paths)
     else:
         gravity, support, items = _bodies_from_state(paths, source, ctx.manifest.model)
-    cache = paths.root / ".cache" / "convex"
-    bodies = []
-    for k, item in enumerate(items):
-        ctx.progress(f"object {item['id']}: convex decomposition", k / max(len(items), 1))
-        mesh = load_mesh(item["mesh_path"])
-        geom = welded(mesh)
-        pieces = cached_convex_decomposition(geom, cache, threshold=opt.convex_threshold,
-                                             max_pieces=opt.max_convex_pieces)
-        props = mass_properties(geom, pieces, mass_kg=item["mass_kg"],
-                                density_kg_m3=opt.density_kg_m3)
-        # An estimated COM (non-uniform density) keeps the uniform body's inertia: the
-        # inertia of a non-uniform body is not observable from one image.
-        com = item["com"] if item["com"] is not None else props.com_in_object
-        inertia = props.inertia_about_com
-        bodies.append(ExportBody(
-            id=item["id"], label=item["label"], visual_mesh=mesh, collision_pieces=pieces,
-            world_from_object=item["pose"], mass_kg=props.mass_kg, com_in_object=np.asarray(com),
-            inertia_about_com=inertia,
-            friction=item["friction"] if item["friction"] is not None else opt.default_friction,
-            restitution=item.get("restitution", opt.restitution) or opt.restitution,
-            extra=item["extra"],
-        ))
-    support.setdefault("friction", opt.default_friction)
-    write_export(ctx.out_dir, gravity, support, bodies)
+    bodies = build_and_write(ctx.out_dir, gravity, support, items, opt, paths.convex_cache,
+                             ctx.progress)
     ctx.progress("done", 1.0)
     return {"source": source, "objects": len(bodies),
             "collision_pieces": int(sum(len(b.collision_pieces) for b in bodies))}

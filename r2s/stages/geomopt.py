@@ -26,13 +26,13 @@ from r2s.geomopt.plot import loss_plot
 from r2s.geomopt.problem import build_problem
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json
 from r2s.io.mesh_io import load_mesh
-from r2s.io.paths import ScenePaths
+from r2s.io.paths import GEOMOPT_LOSS_FILE, ScenePaths
 from r2s.io.sdf_io import load_sdf, read_sdf_meta, save_sdf
 from r2s.io.state import SceneState, read_state, write_state
-from r2s.stages.base import StageContext, StageOptions, StageSpec
+from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.stages.graph import read_contact_graph
-from r2s.stages.manifest import Manifest
-from r2s.stages.select import latest_state_stage
+from r2s.io.manifest import Manifest
+from r2s.io.latest_state import latest_state_stage
 
 SOURCE_STAGES = ("init",)
 SDF_PADDING_FRACTION = 0.1
@@ -173,7 +173,7 @@ def run(ctx: StageContext) -> dict:
     rot_deg = np.degrees(np.linalg.norm(result.omega, axis=1))
     per_object = [{"id": i, "translation_mm": round(float(s), 3), "rotation_deg": round(float(r), 3)}
                   for i, s, r in zip(ids, shift_mm, rot_deg)]
-    atomic_write_json(ctx.out_dir / "loss.json", {
+    atomic_write_json(ctx.out_dir / GEOMOPT_LOSS_FILE, {
         "iterations": result.iterations, "converged": result.converged,
         "best_iteration": result.best_iteration, "seconds": round(result.seconds, 3),
         "terms": result.history, "before": _mm(result.before), "after": _mm(result.after),

@@ -20,11 +20,11 @@ from r2s.graph.support import SupportParams
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json
 from r2s.io.input_scene import read_json_file
 from r2s.io.mesh_io import load_mesh
-from r2s.io.paths import ScenePaths
+from r2s.io.paths import CONTACT_GRAPH_FILE, ScenePaths
 from r2s.io.state import SceneState, read_state
-from r2s.stages.base import StageContext, StageOptions, StageSpec
-from r2s.stages.manifest import Manifest
-from r2s.stages.select import latest_state_stage
+from r2s.runner.base import StageContext, StageOptions, StageSpec
+from r2s.io.manifest import Manifest
+from r2s.io.latest_state import latest_state_stage
 
 SOURCE_STAGES = ("init",)
 
@@ -108,7 +108,7 @@ def run(ctx: StageContext) -> dict:
                                 np.asarray(state.support.point),
                                 np.asarray(state.support.normal), opts.params())
     graph = ContactGraph.model_validate({**graph.model_dump(), "source_stage": source})
-    atomic_write_json(ctx.out_dir / "contact_graph.json", graph.model_dump())
+    atomic_write_json(ctx.out_dir / CONTACT_GRAPH_FILE, graph.model_dump())
     ctx.progress("drawing", 0.9)
     atomic_write_bytes(ctx.out_dir / "contact_graph.png",
                        draw_contact_graph(graph, title=f"contact graph ({paths.root.name})"))

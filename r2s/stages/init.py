@@ -42,14 +42,14 @@ from r2s.geometry.overlay import fit_overlay, render_instances
 from r2s.geometry.plane import PlaneFit, fit_plane_ransac, signed_distance
 from r2s.geometry.registration import (IcpOptions, RegistrationResult, register_prior,
                                        surface_fit, voxel_downsample)
-from r2s.diagnose.model import corrected_input
+from r2s.scene_model import corrected_input
 from r2s.io.atomic import atomic_write_bytes
 from r2s.io.input_scene import InputScene, ObjectSpec, load_input
 from r2s.io.mesh_io import load_mesh, save_mesh
 from r2s.io.paths import ScenePaths
 from r2s.io.state import DEFAULT_GRAVITY, ObjectState, SceneState, SupportPlane, write_state
-from r2s.stages.base import StageContext, StageOptions, StageSpec
-from r2s.stages.manifest import Manifest
+from r2s.runner.base import StageContext, StageOptions, StageSpec
+from r2s.io.manifest import Manifest
 
 SUPPORT_FRICTION = 0.8
 """Friction written for the support plane (no stage before physopt estimates it)."""

@@ -29,18 +29,18 @@ import numpy as np
 from PIL import Image
 from pydantic import Field
 
-from r2s.diagnose.model import corrected_input
+from r2s.scene_model import corrected_input
 from r2s.errors import StageError
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json
 from r2s.io.input_scene import load_input
 from r2s.io.mesh_io import load_mesh, save_mesh
-from r2s.io.paths import ScenePaths
+from r2s.io.paths import METRICS_FILE, ScenePaths
 from r2s.io.state import read_state, write_state
 from r2s.metrics.rendering import masked_psnr, rendering_metrics, side_by_side, ssim_map
 from r2s.render.shade import mesh_colour, shade
-from r2s.stages.base import StageContext, StageOptions, StageSpec
-from r2s.stages.manifest import Manifest
-from r2s.stages.select import GEOMETRY_STAGES, latest_state_stage
+from r2s.runner.base import StageContext, StageOptions, StageSpec
+from r2s.io.manifest import Manifest
+from r2s.io.latest_state import GEOMETRY_STAGES, latest_state_stage
 from r2s.texture.refine import RefineOptions, refine_textures, seen_texels
 from r2s.texture.scene import observed_pixels, pixel_samples, render_textures, scene_gbuffer
 from r2s.texture.textured import export_texture, textured_mesh, to_trimesh
@@ -158,7 +158,7 @@ def run(ctx: StageContext) -> dict:
         "ssim_before": metrics_before["ssim"], "ssim_after": metrics_after["ssim"],
     }
     t_end = time.perf_counter()
-    atomic_write_json(ctx.out_dir / "metrics.json", {
+    atomic_write_json(ctx.out_dir / METRICS_FILE, {
         **summary,
         "before": metrics_before,
         "after": metrics_after,

@@ -2,8 +2,8 @@
 
 The export stage loads ``gt/meshes/<id>.glb``, welds it (:func:`r2s.io.mesh_io.welded`)
 and calls :func:`r2s.geometry.convex_cache.cached_convex_decomposition` with the defaults
-of its options (read here from :class:`r2s.stages.export.Options`, so the two cannot
-drift apart); the generator settles and verifies the scene with the very same pieces, so that
+of its options (:data:`r2s.geometry.convex_params.DEFAULT_CONVEX`, the one home of those
+parameters, so the two cannot drift apart); the generator settles and verifies the scene with the very same pieces, so that
 exporting the ground truth reproduces the verified rest state. It also primes the scene's
 ``.cache/convex`` memo, so that ``r2s export --set source=gt`` reuses those pieces.
 
@@ -28,16 +28,8 @@ import trimesh
 
 from r2s.geometry import convex, convex_cache
 from r2s.geometry.convex_cache import cached_convex_decomposition, mesh_key
+from r2s.geometry.convex_params import DEFAULT_CONVEX
 from r2s.io.mesh_io import welded
-
-
-@lru_cache(maxsize=1)
-def export_parameters() -> dict:
-    """The decomposition parameters ``r2s export`` passes by default."""
-    from r2s.stages.export import Options
-
-    opts = Options()
-    return {"threshold": float(opts.convex_threshold), "max_pieces": int(opts.max_convex_pieces)}
 
 
 @lru_cache(maxsize=1)
@@ -46,7 +38,7 @@ def code_fingerprint() -> str:
     h = hashlib.sha256()
     for module in (convex, convex_cache):
         h.update(inspect.getsource(module).encode())
-    h.update(json.dumps(export_parameters(), sort_keys=True).encode())
+    h.update(json.dumps(DEFAULT_CONVEX.as_kwargs(), sort_keys=True).encode())
     return h.hexdigest()[:12]
 
 
@@ -66,7 +58,7 @@ def default_cache_dir() -> Optional[Path]:
 def piece_key(mesh: trimesh.Trimesh) -> str:
     """The memo file stem of ``mesh`` (the export's key: the defaults of
     :func:`cached_convex_decomposition` plus the export's parameters)."""
-    return mesh_key(welded(mesh), **export_parameters(), seed=0)
+    return mesh_key(welded(mesh), **DEFAULT_CONVEX.as_kwargs(), seed=0)
 
 
 def collision_pieces(mesh: trimesh.Trimesh, cache_dir: Optional[Path]) -> list[trimesh.Trimesh]:
@@ -77,7 +69,7 @@ def collision_pieces(mesh: trimesh.Trimesh, cache_dir: Optional[Path]) -> list[t
     mesh : closed body mesh with float32-exact vertices (what its GLB file holds).
     cache_dir : folder of the memo, or None to always decompose.
     """
-    return cached_convex_decomposition(welded(mesh), cache_dir, **export_parameters())
+    return cached_convex_decomposition(welded(mesh), cache_dir, **DEFAULT_CONVEX.as_kwargs())
 
 
 def prime_scene_cache(mesh: trimesh.Trimesh, cache_dir: Optional[Path], scene_cache: Path

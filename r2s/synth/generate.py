@@ -273,7 +273,7 @@ def synthesize(out_dir: Path, options: SynthOptions,
         for k, (body, pose) in enumerate(zip(placed.bodies, placed.poses)):
             obj_id = k + 1
             save_mesh(body.mesh, paths.gt / "meshes" / f"{obj_id}.glb")
-            prime_scene_cache(body.mesh, cache_dir, scratch / ".cache" / "convex")
+            prime_scene_cache(body.mesh, cache_dir, ScenePaths(scratch).convex_cache)
             gt_entry = {
                 "id": obj_id, "label": body.name, "mesh": f"meshes/{obj_id}.glb",
                 "world_from_object": _as_list(pose), "mass_kg": body.mass_kg,

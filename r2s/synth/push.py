@@ -34,8 +34,8 @@ import pybullet as pb
 import trimesh
 
 from r2s.errors import R2SError
-from r2s.interaction.action import EndEffector, PushAction, Waypoint
-from r2s.interaction.ground_truth import export_ground_truth
+from r2s.io.push_action import EndEffector, PushAction, Waypoint
+from r2s.sim.export_scene import export_ground_truth
 from r2s.interaction.push import replay_push
 from r2s.io.atomic import atomic_write_json, commit_dir, recover_dir, scratch_dir
 from r2s.io.input_scene import load_camera

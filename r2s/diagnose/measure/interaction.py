@@ -20,7 +20,7 @@ import numpy as np
 from r2s.diagnose.data import PhysicsModel
 from r2s.diagnose.measure.physics import WorldSpec, _poses, build_client, motion_between
 from r2s.errors import InputError
-from r2s.interaction.action import EndEffector, PushAction, Waypoint, read_action
+from r2s.io.push_action import EndEffector, PushAction, Waypoint, read_action
 from r2s.interaction.push import run_push
 from r2s.io.input_scene import read_json_file
 from r2s.io.interaction_input import read_observed

@@ -27,6 +27,7 @@ from r2s.diagnose.stats.noise import scale_noise_level
 from r2s.diagnose.measure.scale_fit import SurfaceModel, fit_prior_scale, free_space
 from r2s.geometry.camera import backproject, camera_center
 from r2s.geometry.convex_cache import cached_convex_decomposition
+from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexParams
 from r2s.geometry.mass_properties import mass_properties
 from r2s.geometry.plane import fit_plane_ransac
 from r2s.geometry.raycast import raycast_view
@@ -190,7 +191,7 @@ def _plane_depth(K: np.ndarray, world_from_camera: np.ndarray, point: np.ndarray
 def world_spec(objects: list[ObjectModel], support_point: np.ndarray,
                support_normal: np.ndarray, support_friction: float, cache_dir: Optional[Path],
                density_kg_m3: float = 600.0, default_friction: float = 0.8,
-               convex_threshold: float = 0.05, max_pieces: int = 64) -> WorldSpec:
+               convex: ConvexParams = DEFAULT_CONVEX) -> WorldSpec:
     """Rigid bodies for PyBullet (convex pieces written to a temporary folder).
 
     Mass, COM, friction and collision pieces as the export stage makes them (pass its
@@ -199,8 +200,7 @@ def world_spec(objects: list[ObjectModel], support_point: np.ndarray,
     tmp = tempfile.TemporaryDirectory(prefix="r2s-diagnose-")
     bodies = []
     for o in objects:
-        pieces = cached_convex_decomposition(o.mesh, cache_dir, threshold=convex_threshold,
-                                             max_pieces=max_pieces)
+        pieces = cached_convex_decomposition(o.mesh, cache_dir, **convex.as_kwargs())
         props = mass_properties(o.mesh, pieces, mass_kg=o.mass_kg, density_kg_m3=density_kg_m3)
         com = props.com_in_object if o.com_in_object is None else np.asarray(o.com_in_object)
         files = write_pieces(pieces, Path(tmp.name), str(o.id))

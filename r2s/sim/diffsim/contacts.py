@@ -63,12 +63,6 @@ def near_grid(obstacle: SdfObstacle, local: torch.Tensor, margin_m: float) -> to
     return torch.nonzero(inside).reshape(-1)
 
 
-def obstacle_distance(obstacle: SdfObstacle, points: torch.Tensor) -> torch.Tensor:
-    """(N,) signed distances of world ``points`` (N, 3) to an SDF obstacle."""
-    local = obstacle_local(obstacle, points)
-    return sdf_lookup(obstacle.values, obstacle.origin, obstacle.voxel_size_m, local)
-
-
 def obstacle_normal(obstacle: SdfObstacle, points: torch.Tensor) -> torch.Tensor:
     """(N, 3) world unit normals (normalised SDF gradient) at world ``points`` (N, 3)."""
     local = obstacle_local(obstacle, points)

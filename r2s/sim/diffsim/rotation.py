@@ -105,9 +105,3 @@ def integrate_quat(q: torch.Tensor, angular_velocity: torch.Tensor, dt: float) -
     ``q_next = exp(angular_velocity * dt) * q`` (exact exponential map), renormalised.
     """
     return quat_normalize(quat_multiply(quat_from_rotvec(angular_velocity * dt), q))
-
-
-def rotation_angle_between(q_a: torch.Tensor, q_b: torch.Tensor) -> torch.Tensor:
-    """Angle (radians) of the relative rotation between two unit quaternions (no gradient use)."""
-    dot = (quat_normalize(q_a) * quat_normalize(q_b)).sum(-1).abs().clamp(max=1.0)
-    return 2.0 * torch.acos(dot)

@@ -8,13 +8,14 @@ positive distance that grows with the distance to the grid.
 
 Cubic grids go through the project's shared :func:`r2s.geometry.sdf_torch.sdf_lookup`
 (same convention); :func:`trilinear_sdf` is this package's own version, used for
-non-cubic grids and when the shared module is unavailable. The two agree to rounding.
+non-cubic grids. The two agree to rounding.
 """
 
 from __future__ import annotations
 
 import torch
 
+from r2s.geometry.sdf_torch import sdf_lookup as cubic_sdf_lookup
 from r2s.sim.diffsim.rotation import safe_norm
 
 _CORNERS = torch.tensor([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
@@ -57,8 +58,8 @@ def sdf_lookup(values: torch.Tensor, origin: torch.Tensor, voxel_size_m: float,
                points: torch.Tensor) -> torch.Tensor:
     """(N,) trilinear signed distance at ``points`` (N, 3); see the module docstring."""
     cubic = values.shape[0] == values.shape[1] == values.shape[2]
-    if _SHARED is not None and cubic:
-        return _SHARED(values, origin, voxel_size_m, points)
+    if cubic:
+        return cubic_sdf_lookup(values, origin, voxel_size_m, points)
     return trilinear_sdf(values, origin, voxel_size_m, points)
 
 
@@ -71,14 +72,3 @@ def sdf_gradient(values: torch.Tensor, origin: torch.Tensor, voxel_size_m: float
     d = sdf_lookup(values, origin, voxel_size_m, probes.reshape(-1, 3)).reshape(-1, 6)
     return (d[:, :3] - d[:, 3:]) / (2.0 * h)
 
-
-def _shared_lookup():
-    """The project's ``r2s.geometry.sdf_torch.sdf_lookup``, or None when it is absent."""
-    try:
-        from r2s.geometry.sdf_torch import sdf_lookup as shared
-    except ImportError:
-        return None
-    return shared
-
-
-_SHARED = _shared_lookup()

@@ -1,16 +1,22 @@
-"""Which state stage downstream stages read: the latest one in pipeline order that has run."""
+"""Which state stage a reader uses: the latest one in pipeline order that has run and is
+current. The one answer to "has stage X finished" for stages and for diagnose alike."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Optional
 
 from r2s.errors import StageError
 from r2s.io.paths import STATE_STAGES, ScenePaths
-from r2s.stages.manifest import Manifest
+from r2s.io.manifest import Manifest
 
 GEOMETRY_STAGES: tuple[str, ...] = ("init", "geomopt", "physopt")
 """State stages that decide poses and physics (texture only repaints meshes)."""
+
+
+def finished(paths: ScenePaths, manifest: Manifest, name: str) -> bool:
+    """Whether state stage ``name`` has a finished result (recorded done, state on disk)."""
+    rec = manifest.stages.get(name)
+    return rec is not None and rec.status == "done" and paths.state(name).is_file()
 
 
 def latest_state_stage(paths: ScenePaths, manifest: Manifest, source: Optional[str] = None,
@@ -24,8 +30,7 @@ def latest_state_stage(paths: ScenePaths, manifest: Manifest, source: Optional[s
     touch it) does not, whichever ran last.
     """
     def done(name: str) -> bool:
-        rec = manifest.stages.get(name)
-        return rec is not None and rec.status == "done" and paths.state(name).is_file()
+        return finished(paths, manifest, name)
 
     def current(name: str) -> bool:
         for key, recorded in manifest.stages[name].input_hashes.items():
@@ -39,12 +44,8 @@ def latest_state_stage(paths: ScenePaths, manifest: Manifest, source: Optional[s
         if not done(source):
             raise StageError(f"stage '{source}' has no result in {paths.root}; run it first")
         return source
-    finished = [n for n in candidates if done(n)]
-    if finished:
-        fresh = [n for n in finished if current(n)]
-        return (fresh or finished)[-1]
+    ran = [n for n in candidates if done(n)]
+    if ran:
+        fresh = [n for n in ran if current(n)]
+        return (fresh or ran)[-1]
     raise StageError(f"{paths.root}: no reconstruction yet; run 'r2s init' first")
-
-
-def state_dir(paths: ScenePaths, stage: str) -> Path:
-    return paths.stage_dir(stage)

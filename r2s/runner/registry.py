@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import importlib
 
-from r2s.stages.base import StageSpec
+from r2s.runner.base import StageSpec
 
 STAGE_MODULES: dict[str, str] = {
     "init": "r2s.stages.init",
@@ -19,16 +19,6 @@ STAGE_MODULES: dict[str, str] = {
 
 PIPELINE: tuple[str, ...] = ("init", "graph", "geomopt", "physopt", "texture", "export", "evaluate")
 """What ``r2s run`` drives, in order."""
-
-
-def available(name: str) -> bool:
-    try:
-        importlib.import_module(STAGE_MODULES[name])
-        return True
-    except ModuleNotFoundError as exc:
-        if exc.name == STAGE_MODULES[name]:
-            return False
-        raise
 
 
 def get_stage(name: str) -> StageSpec:

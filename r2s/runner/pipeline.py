@@ -12,9 +12,10 @@ from r2s.console import console, print_table, stage_progress
 from r2s.errors import R2SError
 from r2s.io.input_scene import load_input
 from r2s.io.paths import ScenePaths
-from r2s.stages.base import StageOptions, StageResult, StageSpec, run_stage, staleness
-from r2s.stages.manifest import load_manifest
-from r2s.stages.registry import PIPELINE, available, get_stage
+from r2s.io.manifest import Manifest, load_manifest
+from r2s.io.recorded_options import recorded_options
+from r2s.runner.base import StageOptions, StageResult, StageSpec, run_stage, staleness
+from r2s.runner.registry import PIPELINE, get_stage
 
 
 def _coerce(value: Any) -> Any:
@@ -26,16 +27,31 @@ def _coerce(value: Any) -> Any:
         return value
 
 
+def _option_error(spec: StageSpec, exc: ValidationError) -> R2SError:
+    err = exc.errors()[0]
+    loc = ".".join(str(p) for p in err.get("loc", ()))
+    return R2SError(f"{spec.name} option {loc}: {err.get('msg')}")
+
+
 def build_options(spec: StageSpec, base: Optional[dict], overrides: dict) -> StageOptions:
-    """Options model from recorded/default values plus ``key=value`` overrides."""
+    """Options model from ``base`` values (None: the defaults) plus ``key=value`` overrides."""
     data = dict(base or {})
     data.update({k: _coerce(v) for k, v in overrides.items()})
     try:
         return spec.options_type.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(p) for p in err.get("loc", ()))
-        raise R2SError(f"{spec.name} option {loc}: {err.get('msg')}") from None
+        raise _option_error(spec, exc) from None
+
+
+def stage_options(spec: StageSpec, manifest: Manifest, overrides: dict) -> StageOptions:
+    """The options a stage runs with: those its last run recorded (else the defaults,
+    :func:`r2s.io.recorded_options.recorded_options`), then ``key=value`` overrides. Both
+    ``r2s run`` and ``r2s <stage> --set`` start here, so an option means one thing."""
+    try:
+        return recorded_options(manifest, spec.name, spec.options_type,
+                                {k: _coerce(v) for k, v in overrides.items()})
+    except ValidationError as exc:
+        raise _option_error(spec, exc) from None
 
 
 def _check_scene(scene_dir: Path) -> ScenePaths:
@@ -46,12 +62,11 @@ def _check_scene(scene_dir: Path) -> ScenePaths:
 
 
 def run_single_stage(scene_dir: Path, name: str, overrides: dict) -> StageResult:
-    """``r2s <stage> SCENE``: rerun that one stage with default options plus overrides."""
+    """``r2s <stage> SCENE``: rerun that one stage with its recorded options (else the
+    defaults) plus overrides."""
     paths = _check_scene(scene_dir)
-    if not available(name):
-        raise R2SError(f"stage '{name}' is not available in this version of r2s")
     spec = get_stage(name)
-    options = build_options(spec, None, overrides)
+    options = stage_options(spec, load_manifest(paths.manifest), overrides)
     with stage_progress(name) as progress:
         result = run_stage(spec, paths.root, options, progress=progress, force=True)
     _print_results([result])
@@ -74,7 +89,7 @@ def run_pipeline(scene_dir: Path, force: bool = False, until: Optional[str] = No
     """Run each stage of :data:`PIPELINE` that is stale (or all with ``force``).
 
     Stages replay the options recorded in the manifest, updated by ``overrides``
-    (``{"physopt.iterations": "50"}``). Stages not installed in this version are skipped.
+    (``{"physopt.iterations": "50"}``).
     """
     paths = _check_scene(scene_dir)
     skip = list(skip or [])
@@ -85,16 +100,12 @@ def run_pipeline(scene_dir: Path, force: bool = False, until: Optional[str] = No
     order = list(PIPELINE[: PIPELINE.index(until) + 1] if until else PIPELINE)
     results: list[StageResult] = []
     for name in order:
-        if name in skip or not available(name):
+        if name in skip:
             continue
         spec = get_stage(name)
         manifest = load_manifest(paths.manifest)
         rec = manifest.stages.get(name)
-        recorded = rec.options if rec is not None else None
-        try:
-            options = build_options(spec, recorded, per_stage.get(name, {}))
-        except R2SError:
-            options = build_options(spec, None, per_stage.get(name, {}))
+        options = stage_options(spec, manifest, per_stage.get(name, {}))
         if not force:
             reason = staleness(spec, paths, options, manifest)
             if not reason:

@@ -6,7 +6,7 @@ copy's ``manifest.model`` (composed with what the model already holds) exactly a
 ``--set apply=true`` adds them to the scene's, and the pipeline stages that ran in the
 original are rerun from the first one an effect affects (init for input-level effects;
 physopt, else export, for state-level ones), with the options the original recorded. The
-stages apply the model themselves (:mod:`r2s.diagnose.model`'s hooks), so the copy's
+stages apply the model themselves (:mod:`r2s.scene_model`'s hooks), so the copy's
 ``input/`` and state files are never patched and nothing is applied twice. The original
 scene is never written.
 """
@@ -21,25 +21,27 @@ from typing import Any, Mapping, Optional
 from r2s.console import ProgressFn, silent_progress
 from r2s.diagnose.effects import get_effect
 from r2s.diagnose.effects.base import EffectFit
-from r2s.diagnose.model import with_effect
+from r2s.scene_model import with_effect
 from r2s.io.paths import ScenePaths
-from r2s.stages.base import run_stage
-from r2s.stages.manifest import load_manifest, save_manifest
-from r2s.stages.registry import PIPELINE, available, get_stage
+from r2s.io.manifest import load_manifest, save_manifest
+from r2s.runner.base import run_stage
+from r2s.runner.pipeline import stage_options
+from r2s.runner.registry import PIPELINE, get_stage
 
 
 def copy_scene(scene_dir: Path, dest_root: Path) -> Path:
     """A working copy of ``scene_dir`` under ``dest_root`` (see the module docstring)."""
     src = Path(scene_dir).resolve()
     dst = Path(dest_root) / src.name
+    cache, convex = ScenePaths(src).cache, ScenePaths(src).convex_cache.name
 
     def ignore(folder: str, names: list[str]) -> set[str]:
         here = Path(folder).resolve()
         skip = {n for n in names if n.startswith(".tmp-") or n.startswith(".old-")}
         if here == src:
             skip |= {n for n in names if n == "diagnose"}
-        if here == src / ".cache":
-            skip |= {n for n in names if n != "convex"}
+        if here == cache:
+            skip |= {n for n in names if n != convex}
         return skip
 
     shutil.copytree(src, dst, ignore=ignore)
@@ -55,13 +57,13 @@ def stages_to_rerun(scene_dir: Path, fits: list[EffectFit],
     ran = [s for s in PIPELINE
            if (rec := manifest.stages.get(s)) is not None and rec.status == "done"]
     if requested:
-        return [s for s in PIPELINE if s in requested and available(s)]
+        return [s for s in PIPELINE if s in requested]
     levels = {get_effect(f.effect).level for f in fits}
     if "input" in levels:
         first = "init"
     else:
         first = "physopt" if "physopt" in ran else "export"
-    return [s for s in PIPELINE[PIPELINE.index(first):] if s in ran and available(s)]
+    return [s for s in PIPELINE[PIPELINE.index(first):] if s in ran]
 
 
 def rerun_with_effects(scene_dir: Path, fits: list[EffectFit], work_root: Path,
@@ -80,8 +82,7 @@ def rerun_with_effects(scene_dir: Path, fits: list[EffectFit], work_root: Path,
     for k, name in enumerate(order):
         progress(f"rerunning {name} with the effect", k / max(len(order), 1))
         spec = get_stage(name)
-        rec = load_manifest(paths.manifest).stages.get(name)
-        options = _options(spec, rec.options if rec is not None else None)
+        options = stage_options(spec, load_manifest(paths.manifest), {})
         run_stage(spec, copy, options, force=True)
     return copy, order
 
@@ -92,16 +93,6 @@ def model_with_fits(model: Mapping[str, Any] | None, fits: list[EffectFit]) -> d
     for fit in fits:
         new = with_effect(new, fit.effect, fit.params)
     return new
-
-
-def _options(spec, recorded: Optional[dict]):
-    from r2s.pipeline import build_options
-    from r2s.errors import R2SError
-
-    try:
-        return build_options(spec, recorded, {})
-    except R2SError:
-        return build_options(spec, None, {})
 
 
 def temporary_root() -> tempfile.TemporaryDirectory:

@@ -8,7 +8,7 @@ A stage module defines::
     STAGE = StageSpec("name", Options, inputs, run)
 
 A stage that applies the scene's model (``manifest.model``, effects kept by ``r2s diagnose
---set apply=true``; :mod:`r2s.diagnose.model`) names the levels it applies in
+--set apply=true``; :mod:`r2s.scene_model`) names the levels it applies in
 ``uses_model``; the part of the model of those levels is hashed with its inputs.
 
 :func:`run_stage` recovers a half-finished previous run, skips the stage when nothing it
@@ -33,8 +33,9 @@ from r2s import __version__
 from r2s.console import ProgressFn, silent_progress
 from r2s.errors import R2SError
 from r2s.io.atomic import commit_dir, recover_dir, scratch_dir
+from r2s.io.manifest import Manifest, StageRecord, hash_path, load_manifest, save_manifest
 from r2s.io.paths import ScenePaths
-from r2s.stages.manifest import Manifest, StageRecord, hash_path, load_manifest, save_manifest
+from r2s.scene_model import model_part
 
 
 class StageOptions(BaseModel):
@@ -67,8 +68,8 @@ class StageSpec:
     """Folder the stage writes; defaults to ``name``."""
     uses_model: frozenset[str] = frozenset()
     """Levels of the scene's model the stage applies ("input": it corrects the observation
-    with :func:`r2s.diagnose.model.corrected_input`; "state": it corrects a state with
-    :func:`r2s.diagnose.model.corrected_state`). Their part of ``manifest.model`` counts
+    with :func:`r2s.scene_model.corrected_input`; "state": it corrects a state with
+    :func:`r2s.scene_model.corrected_state`). Their part of ``manifest.model`` counts
     among the stage's inputs."""
 
     @property
@@ -104,8 +105,6 @@ def model_hashes(spec: StageSpec, manifest: Manifest) -> dict[str, str]:
     had before models existed, and an unchanged model changes nothing)."""
     if not spec.uses_model or not manifest.model:
         return {}
-    from r2s.diagnose.model import model_part  # the effect catalogue, only when needed
-
     part = model_part(manifest.model, spec.uses_model)
     if not part:
         return {}

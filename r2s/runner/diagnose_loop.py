@@ -9,7 +9,7 @@ library); every decision is a library function:
    leave a structured residual it only partly explains
    (:func:`r2s.diagnose.stats.steps.leaves_structure`) is the step's effect;
 2. rerun the affected stages on a fresh copy of the scene with every kept effect and this
-   one in the copy's model (:func:`r2s.diagnose.rerun.rerun_with_effects`), measure the
+   one in the copy's model (:func:`r2s.runner.rerun.rerun_with_effects`), measure the
    residuals and the ground-truth errors there;
 3. keep the effect when the residual it claimed fell
    (:func:`r2s.diagnose.stats.steps.judge_step`), else revert it and leave it out;
@@ -32,7 +32,7 @@ from r2s.console import ProgressFn, silent_progress
 from r2s.diagnose.blocks import blocks_of, total_sse
 from r2s.diagnose.effects.base import Effect, EffectFit
 from r2s.diagnose.ranking import NoiseBar, Round, rank, supported
-from r2s.diagnose.rerun import model_with_fits, rerun_with_effects, temporary_root
+from r2s.runner.rerun import rerun_with_effects, temporary_root
 from r2s.diagnose.scene import Measured, MeasureSettings, measure_scene, scene_gt_errors
 from r2s.diagnose.stats.steps import StepJudgement, claimed_blocks, judge_step, leaves_structure
 from r2s.diagnose.stats.structure_test import StructureFinding, test_structure

@@ -1,0 +1,118 @@
+"""What physopt tunes per object, as frozen typed values (object frame, SI units).
+
+A round of physopt never edits an object's parameters in place: it builds the next
+:class:`ObjectParams` with :func:`dataclasses.replace`, so a kept snapshot of the scene
+(``dict(params)``) stays what it was.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Iterable
+
+import numpy as np
+
+from r2s.geometry.mass_properties import mass_properties
+from r2s.io.state import SceneState
+
+INNER_BOX_MARGIN = 0.3
+"""The COM is kept inside the central box of the shape's bounding box that leaves this
+fraction of each extent on either side (the central 40%)."""
+
+
+def _frozen_array(values, shape: tuple[int, ...]) -> np.ndarray:
+    out = np.array(values, dtype=np.float64).reshape(shape)
+    out.setflags(write=False)
+    return out
+
+
+@dataclass(frozen=True)
+class ObjectParams:
+    """One object's physics and pose.
+
+    world_from_object : (4, 4) pose; mass_kg; nominal_mass_kg : volume x density (the
+    prior the mass is bounded around); com_in_object : (3,) metres, object frame;
+    friction : per-body coefficient; com_lo / com_hi : (3,) the COM's box (object frame);
+    movable : False for an object held fixed (``--set only=ID`` keeps the rest).
+    """
+
+    world_from_object: np.ndarray
+    mass_kg: float
+    nominal_mass_kg: float
+    com_in_object: np.ndarray
+    friction: float
+    com_lo: np.ndarray
+    com_hi: np.ndarray
+    movable: bool = field(default=True)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "world_from_object", _frozen_array(self.world_from_object, (4, 4)))
+        for name in ("com_in_object", "com_lo", "com_hi"):
+            object.__setattr__(self, name, _frozen_array(getattr(self, name), (3,)))
+
+    def with_pose(self, world_from_object: np.ndarray) -> "ObjectParams":
+        return replace(self, world_from_object=world_from_object)
+
+
+Params = dict[int, ObjectParams]
+"""Object id -> its parameters."""
+
+
+def inner_box(bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """COM bounds (lo, hi), each (3,), from a (2, 3) bounding box (object frame)."""
+    lo, hi = np.asarray(bounds[0]), np.asarray(bounds[1])
+    return lo + INNER_BOX_MARGIN * (hi - lo), hi - INNER_BOX_MARGIN * (hi - lo)
+
+
+def initial_params(state: SceneState, meshes: dict, pieces: dict, density_kg_m3: float,
+                   mass_bounds: tuple[float, float], friction_init: float) -> Params:
+    """Start values: the state's estimates, else the uniform-density body; the mass
+    clipped to ``mass_bounds`` times the nominal mass."""
+    params: Params = {}
+    lo, hi = mass_bounds
+    for obj in state.objects:
+        nominal = mass_properties(meshes[obj.id], pieces[obj.id], density_kg_m3=density_kg_m3)
+        mass = obj.mass_kg if obj.mass_kg is not None else nominal.mass_kg
+        com_lo, com_hi = inner_box(meshes[obj.id].bounds)
+        params[obj.id] = ObjectParams(
+            world_from_object=obj.pose,
+            mass_kg=float(np.clip(mass, lo * nominal.mass_kg, hi * nominal.mass_kg)),
+            nominal_mass_kg=nominal.mass_kg,
+            com_in_object=(obj.com_in_object if obj.com_in_object is not None
+                           else nominal.com_in_object),
+            friction=float(obj.friction if obj.friction is not None else friction_init),
+            com_lo=com_lo, com_hi=com_hi)
+    return params
+
+
+def keep_previous(params: Params, previous: SceneState, rerun: Iterable[int]) -> Params:
+    """``--set only=ID``: objects outside ``rerun`` take their last physopt result and are
+    held fixed; those in ``rerun`` start afresh."""
+    rerun = set(rerun)
+    out = {i: replace(p, movable=i in rerun) for i, p in params.items()}
+    for obj in previous.objects:
+        if obj.id in out and obj.id not in rerun:
+            p = out[obj.id]
+            out[obj.id] = replace(
+                p, world_from_object=obj.pose,
+                mass_kg=obj.mass_kg if obj.mass_kg is not None else p.mass_kg,
+                com_in_object=(obj.com_in_object if obj.com_in_object is not None
+                               else p.com_in_object),
+                friction=obj.friction if obj.friction is not None else p.friction)
+    return out
+
+
+Drift = dict[int, tuple[float, float]]
+"""Object id -> (COM translation m, rotation deg) over a rollout."""
+
+
+def is_moving(drift: tuple[float, float], tolerance_m: float, tolerance_deg: float) -> bool:
+    """The one "does it move" test: translation above ``tolerance_m`` or rotation above
+    ``tolerance_deg``."""
+    translation_m, rotation_deg = drift
+    return translation_m > tolerance_m or rotation_deg > tolerance_deg
+
+
+def moving_objects(drifts: Drift, tolerance_m: float, tolerance_deg: float) -> list[int]:
+    """Ids whose drift counts as moving, in ``drifts``' order."""
+    return [i for i, d in drifts.items() if is_moving(d, tolerance_m, tolerance_deg)]

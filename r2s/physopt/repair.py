@@ -1,0 +1,249 @@
+"""physopt's PyBullet rounds: check the scene as the judge will, repair what moves.
+
+The scene is rebuilt from frozen :class:`r2s.physopt.params.ObjectParams` for every check
+(a fresh world per check: PyBullet's answer for a marginal contact depends on the order
+bodies were created in and on the contact manifolds a world has accumulated). A round
+moves the movers' COM over their support (:func:`com_repair`), raises their friction to
+its upper bound, and settles the scene quasi-statically; when rounds run out with objects
+moving, a damped dynamic rest is the last resort (:func:`damped_rest`). The best checked
+state is kept (:func:`score`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Callable, Optional, Sequence, Union
+
+import numpy as np
+import pybullet as pb
+
+from r2s.console import ProgressFn
+from r2s.io.state import SceneState
+from r2s.physopt.params import Drift, ObjectParams, Params
+from r2s.physopt.settings import RepairSettings
+from r2s.physopt.pybullet_world import (SimBody, World, build_world, depenetrate, drift,
+                                        settle, settle_damped, world_gravity)
+
+SHIFT_NOTED_M = 1e-4
+"""A pose or COM change smaller than this is not logged."""
+
+
+MakeWorld = Callable[[Params, Optional[Sequence[int]]], World]
+
+
+def world_factory(pieces: dict, state: SceneState, order: list[int],
+                  settings: RepairSettings) -> MakeWorld:
+    """``make_world(params, body_order=None)``: a PyBullet world of the scene; an object
+    that is not ``movable`` is static (mass 0) and cannot move."""
+    def make_world(params: Params, body_order: Optional[Sequence[int]] = None) -> World:
+        bodies = [SimBody(i, pieces[i], params[i].world_from_object,
+                          params[i].mass_kg if params[i].movable else 0.0,
+                          params[i].com_in_object, params[i].friction)
+                  for i in (body_order or order)]
+        return build_world(bodies, state.support.point, state.support.normal,
+                           settings.support_friction, state.gravity)
+    return make_world
+
+
+def depenetrate_scene(make_world: MakeWorld, params: Params, order: list[int],
+                      log: dict) -> Params:
+    """Separate the collision geometry (children move, parents stay) before anything else."""
+    world = make_world(params)
+    try:
+        fixed = depenetrate(world, order, movable={i for i in order if params[i].movable})
+    finally:
+        world.close()
+    out = dict(params)
+    for i in order:
+        shift = float(np.linalg.norm(fixed[i][:3, 3] - params[i].world_from_object[:3, 3]))
+        if shift > SHIFT_NOTED_M:
+            log["objects"][i].append(f"depenetrated by {shift * 1000:.1f} mm")
+        out[i] = params[i].with_pose(fixed[i])
+    return out
+
+
+def com_repair(world: World, oid: int, p: ObjectParams, max_step_m: float
+               ) -> tuple[ObjectParams, float]:
+    """Make a moving object's rest robust by its mass distribution (bounded, non-uniform
+    density): the COM moves horizontally towards the centroid of the contacts that carry
+    its weight (at most ``max_step_m``) and down along gravity (half of that), within the
+    inner box of the shape. A COM over its support stops toppling; a lower COM turns the
+    neutral balance of a round object on one contact into a stable one.
+
+    Returns the new parameters and how far the COM moved (m).
+    """
+    pb.performCollisionDetection(physicsClientId=world.client)
+    up = -np.asarray(world_gravity(world), dtype=float)
+    up /= np.linalg.norm(up)
+    pts = pb.getContactPoints(bodyA=world.body_ids[oid], physicsClientId=world.client)
+    # contactNormalOnB points from the other body towards this one: up for a support
+    support = [np.asarray(c[5]) for c in pts if float(np.dot(c[7], up)) > 0.3]
+    pose = p.world_from_object
+    com_world = pose[:3, :3] @ p.com_in_object + pose[:3, 3]
+    delta = -up * (0.5 * max_step_m)
+    if support:
+        horizontal = np.mean(support, axis=0) - com_world
+        horizontal -= up * float(horizontal @ up)
+        horizontal *= min(1.0, max_step_m / max(float(np.linalg.norm(horizontal)), 1e-12))
+        delta = delta + horizontal
+    step = pose[:3, :3].T @ delta
+    new_com = np.clip(p.com_in_object + step, p.com_lo, p.com_hi)
+    moved = float(np.linalg.norm(new_com - p.com_in_object))
+    if moved > SHIFT_NOTED_M:
+        return replace(p, com_in_object=new_com), moved
+    return p, moved
+
+
+def check(make_world: MakeWorld, params: Params, orders: list[list[int]],
+          duration_s: float) -> Drift:
+    """The judge's test, in fresh worlds: per object the worst (translation m, rotation
+    deg) over ``orders`` of body creation."""
+    worst: Drift = {}
+    for order in orders:
+        world = make_world(params, order)
+        try:
+            res = drift(world, {i: params[i].world_from_object for i in order}, duration_s)
+        finally:
+            world.close()
+        for i, (t, r) in res.items():
+            a, b = worst.get(i, (0.0, 0.0))
+            worst[i] = (max(a, t), max(b, r))
+    return worst
+
+
+def score(drifts: Drift, settings: RepairSettings) -> tuple:
+    """Rank of a checked state, lower is better: fewest objects failing the judge's
+    criterion; among those, the failures closest to passing (a state whose failures creep
+    is a better start for the damped rest than one where they fly off); then fewest moving
+    at all; then least drift."""
+    severity = {i: max(t / settings.judge_translation_m, r / settings.judge_rotation_deg)
+                for i, (t, r) in drifts.items()}
+    failing = [i for i, s in severity.items() if s >= 1.0]
+    return (len(failing), round(sum(severity[i] for i in failing), 1),
+            len(settings.moving(drifts)), sum(t for t, _ in drifts.values()))
+
+
+def _drift_log(drifts: Drift) -> dict[str, list]:
+    return {str(i): list(v) for i, v in drifts.items()}
+
+
+def repair_round(make_world: MakeWorld, params: Params, order: list[int], movers: list[int],
+                 result: Drift, rnd: int, settings: RepairSettings, log: dict) -> Params:
+    """One round on the movers: COM towards the support, friction to its bound, then a
+    quasi-static settle of the whole scene (a settling move beyond the round's limit is
+    refused). Returns the new parameters."""
+    params = dict(params)
+    if settings.com_repair:
+        world = make_world(params)
+        try:
+            for i in movers:
+                params[i], moved = com_repair(world, i, params[i], settings.max_com_step_m)
+                if moved > SHIFT_NOTED_M:
+                    log["objects"][i].append(f"round {rnd}: COM moved {moved * 1000:.1f} mm "
+                                             "towards its support")
+        finally:
+            world.close()
+    hi = settings.friction_bounds[1]
+    for i in movers:
+        if params[i].friction < hi:
+            log["objects"][i].append(f"round {rnd}: friction {params[i].friction:.2f} -> "
+                                     f"{hi:.2f} (moved {result[i][0] * 1000:.1f} mm, "
+                                     f"{result[i][1]:.1f} deg)")
+            params[i] = replace(params[i], friction=hi)
+    world = make_world(params)
+    try:
+        start = {i: params[i].world_from_object for i in order}
+        settled = settle(world, start, settings.settle_duration_s, settings.settle_reset_steps)
+    finally:
+        world.close()
+    last = rnd == settings.max_rounds
+    limit = settings.final_settle_shift_m if last else settings.max_settle_shift_m
+    for i in order:
+        shift = float(np.linalg.norm(settled[i][:3, 3] - start[i][:3, 3]))
+        if shift <= limit:
+            if shift > SHIFT_NOTED_M:
+                log["objects"][i].append(f"round {rnd}: settled by {shift * 1000:.1f} mm")
+            params[i] = params[i].with_pose(settled[i])
+        else:
+            log["objects"][i].append(f"round {rnd}: settling moved it "
+                                     f"{shift * 1000:.0f} mm; kept in place")
+    return params
+
+
+def damped_rest(make_world: MakeWorld, params: Params, order: list[int],
+                orders: list[list[int]], settings: RepairSettings, log: dict, current: Drift,
+                movers_only: bool) -> Optional[tuple[Params, Drift]]:
+    """Let the engine bring the scene to a damped dynamic rest (with ``movers_only``, the
+    objects that passed the ``current`` check are held fixed meanwhile) and check it.
+
+    Returns the rest parameters and their check, or None when something would move further
+    than ``final_settle_shift_m``.
+    """
+    still = set(settings.moving(current))
+    held = {i: replace(params[i], movable=params[i].movable and i in still) for i in order} \
+        if movers_only else params
+    world = make_world(held)
+    try:
+        start = {i: params[i].world_from_object for i in order}
+        rest = settle_damped(world, start, settings.rest_duration_s, settings.rest_damping)
+    finally:
+        world.close()
+    what = "damped rest (" + ("moving objects only" if movers_only else "whole scene") + ")"
+    shifts = {i: float(np.linalg.norm(rest[i][:3, 3] - start[i][:3, 3])) for i in order}
+    worst = max(shifts, key=shifts.get)
+    if shifts[worst] > settings.final_settle_shift_m:
+        log["rounds"].append({"round": "rest", "action": what + " rejected",
+                              "reason": f"object {worst} would move {shifts[worst] * 1000:.0f} mm"})
+        return None
+    params = {**params, **{i: params[i].with_pose(rest[i]) for i in order}}
+    result = check(make_world, params, orders, settings.verify_duration_s)
+    for i in order:
+        if shifts[i] > SHIFT_NOTED_M:
+            log["objects"][i].append(f"{what}: moved {shifts[i] * 1000:.1f} mm")
+    log["rounds"].append({"round": "rest", "action": what, "moving": settings.moving(result),
+                          "drift": _drift_log(result)})
+    return params, result
+
+
+Kept = tuple[tuple, Params, Drift, Union[int, str]]
+"""(score, parameters, their check, the round that produced them)."""
+
+
+def verify_and_repair(make_world: MakeWorld, params: Params, order: list[int],
+                      export_order: list[int], settings: RepairSettings, log: dict,
+                      progress: ProgressFn) -> tuple[Params, Drift]:
+    """Check, then repair rounds while anything moves, then the damped rest if needed.
+
+    Rounds need not improve monotonically (settling one object can unsettle its
+    neighbour), so the best checked state (:func:`score`) is returned with its check.
+    ``export_order``: the order bodies are created in by the judge (checked forwards and
+    backwards).
+    """
+    orders = [export_order, export_order[::-1]] if len(export_order) > 1 else [export_order]
+    result = check(make_world, params, orders, settings.verify_duration_s)
+    log["rounds"].append({"round": 0, "action": "check", "moving": settings.moving(result),
+                          "drift": _drift_log(result)})
+    best: Kept = (score(result, settings), params, result, 0)
+    for rnd in range(1, settings.max_rounds + 1):
+        movers = settings.moving(result)
+        if not movers:
+            break
+        progress(f"verification round {rnd}: {len(movers)} moving",
+                 0.5 + 0.5 * rnd / (settings.max_rounds + 1))
+        params = repair_round(make_world, params, order, movers, result, rnd, settings, log)
+        result = check(make_world, params, orders, settings.verify_duration_s)
+        log["rounds"].append({"round": rnd, "action": "friction+settle",
+                              "moving": settings.moving(result), "drift": _drift_log(result)})
+        if score(result, settings) < best[0]:
+            best = (score(result, settings), params, result, rnd)
+    if settings.moving(best[2]) and settings.rest_duration_s > 0 and settings.max_rounds > 0:
+        for movers_only in (True, False):  # the least disturbing first
+            trial = damped_rest(make_world, best[1], order, orders, settings, log, best[2],
+                                movers_only)
+            if trial is not None and score(trial[1], settings) < best[0]:
+                best = (score(trial[1], settings), trial[0], trial[1], "rest")
+            if not settings.moving(best[2]):
+                break
+    log["kept"] = {"round": best[3], "moving": settings.moving(best[2])}
+    return best[1], best[2]
+

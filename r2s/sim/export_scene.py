@@ -1,0 +1,121 @@
+"""Build the judge's bodies from a list of objects and write them as ``export/``.
+
+The body parameters (:class:`BodyParams`: density where no mass is estimated, friction
+where none is, restitution, the convex decomposition) have one home here: the export
+stage's options default to them, diagnose reads the recorded ones into this type, and the
+ground truth is exported with the defaults (:func:`export_ground_truth`).
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from r2s.console import ProgressFn, silent_progress
+from r2s.geometry.convex_cache import cached_convex_decomposition
+from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexParams
+from r2s.geometry.mass_properties import mass_properties
+from r2s.io.export_writer import ExportBody, write_export
+from r2s.io.mesh_io import load_mesh, welded
+from r2s.io.paths import ScenePaths
+from r2s.io.scene_json import read_gt_scene
+
+
+class BodyParams(BaseModel):
+    """How export turns an object into a rigid body (the export stage's options but its
+    source). Field names are the export options' (``r2s export --set density_kg_m3=...``)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    density_kg_m3: float = Field(600.0, gt=0, description="Density where no mass is estimated.")
+    default_friction: float = Field(0.8, gt=0, description="Body friction where none is estimated.")
+    convex_threshold: float = Field(DEFAULT_CONVEX.threshold, gt=0,
+                                    description="CoACD concavity threshold.")
+    max_convex_pieces: int = Field(DEFAULT_CONVEX.max_pieces, ge=1,
+                                   description="Most convex pieces per object.")
+    restitution: float = Field(0.0, ge=0, le=1, description="Restitution of every body.")
+
+    @property
+    def convex(self) -> ConvexParams:
+        return ConvexParams(self.convex_threshold, self.max_convex_pieces)
+
+
+@dataclass(frozen=True)
+class ObjectItem:
+    """One object to export: its mesh file and what a stage estimated (None: not estimated).
+
+    pose : (4, 4) world_from_object; com : (3,) object frame, metres.
+    """
+
+    id: int
+    label: str
+    mesh_path: Path
+    pose: np.ndarray
+    mass_kg: Optional[float]
+    com: Optional[np.ndarray]
+    friction: Optional[float]
+    restitution: Optional[float] = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def gt_items(paths: ScenePaths) -> tuple[list, dict, list[ObjectItem]]:
+    """``(gravity, support dict, items)`` of the ground truth ``gt/scene.json``."""
+    gt = read_gt_scene(paths.gt_scene)
+    items = [ObjectItem(id=obj.id, label=obj.label, mesh_path=paths.gt / obj.mesh,
+                        pose=np.asarray(obj.world_from_object), mass_kg=obj.mass_kg,
+                        com=np.asarray(obj.com_in_object), friction=obj.friction,
+                        extra={"source": "gt"})
+             for obj in gt.objects]
+    return gt.gravity, gt.support.model_dump(), items
+
+
+def build_and_write(out_dir: Path, gravity: list, support: dict, items: list[ObjectItem],
+                    params: BodyParams, cache_dir: Optional[Path],
+                    progress: ProgressFn = silent_progress) -> list[ExportBody]:
+    """Decompose, weigh and write every object into ``out_dir`` (export/'s layout)."""
+    bodies = []
+    for k, item in enumerate(items):
+        progress(f"object {item.id}: convex decomposition", k / max(len(items), 1))
+        mesh = load_mesh(item.mesh_path)
+        geom = welded(mesh)
+        pieces = cached_convex_decomposition(geom, cache_dir, **params.convex.as_kwargs())
+        props = mass_properties(geom, pieces, mass_kg=item.mass_kg,
+                                density_kg_m3=params.density_kg_m3)
+        # An estimated COM (non-uniform density) keeps the uniform body's inertia: the
+        # inertia of a non-uniform body is not observable from one image.
+        com = item.com if item.com is not None else props.com_in_object
+        bodies.append(ExportBody(
+            id=item.id, label=item.label, visual_mesh=mesh, collision_pieces=pieces,
+            world_from_object=item.pose, mass_kg=props.mass_kg, com_in_object=np.asarray(com),
+            inertia_about_com=props.inertia_about_com,
+            friction=item.friction if item.friction is not None else params.default_friction,
+            restitution=item.restitution or params.restitution,
+            extra=item.extra,
+        ))
+    support = dict(support)
+    support.setdefault("friction", params.default_friction)
+    write_export(out_dir, gravity, support, bodies)
+    return bodies
+
+
+def export_ground_truth(scene_dir: Path, work_dir: Path) -> Path:
+    """Export ``scene_dir/gt`` with the default body parameters into ``work_dir/export``.
+
+    Reuses the scene's ``.cache/convex`` (pieces primed by ``r2s synth``) read-only, so
+    nothing is decomposed again; ``scene_dir`` itself is not written. Returns the folder.
+    """
+    src = ScenePaths(Path(scene_dir))
+    work = Path(work_dir) / "gt_scene"
+    cache = ScenePaths(work).convex_cache
+    if src.convex_cache.is_dir():
+        shutil.copytree(src.convex_cache, cache)
+    gravity, support, items = gt_items(src)
+    out = ScenePaths(work).export
+    out.mkdir(parents=True)
+    build_and_write(out, gravity, support, items, BodyParams(), cache)
+    return out
