@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from r2s.diagnose.blocks import blocks_of, tilt_vector, total_n, total_sse
+from r2s.diagnose.stats.blocks import blocks_of, tilt_vector, total_n, total_sse
 from r2s.diagnose.data import (InteractionData, Motion, PhysicsData, PhysicsModel, PhysObject,
                                RegistrationData, Residuals, ScaleObs, SupportData)
 from r2s.diagnose.effects import all_effects, get_effect
-from r2s.diagnose.ranking import diagnose
-from r2s.diagnose.wrench import balancing_com_shift, nearest_in_hull_2d, toppling_direction
+from r2s.diagnose.stats.ranking import diagnose
+from r2s.diagnose.effects._wrench import balancing_com_shift, nearest_in_hull_2d, toppling_direction
 
 G = np.array([0.0, 0.0, -9.81])
 
@@ -115,7 +115,7 @@ def test_depth_bias_compose_equals_applying_twice():
     eff = get_effect("depth_scale")
     old, new = {"scale": 1.02, "offset_m": 0.004}, {"scale": 0.99, "offset_m": -0.002}
     z = np.array([0.5, 0.8, 1.3])
-    from r2s.diagnose.depth_model import correct_depth
+    from r2s.diagnose.effects._depth_model import correct_depth
 
     twice = correct_depth(correct_depth(z, 1.02, 0.004), 0.99, -0.002)
     comp = eff.compose(old, new)

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from helpers_diagnose import write_scene
-from r2s.diagnose.blocks import blocks_of
+from r2s.diagnose.stats.blocks import blocks_of
 from r2s.diagnose.data import (RegistrationData, Residuals, ScaleObs, SupportData,
                                TableShapeData)
 from r2s.diagnose.effects import all_effects, get_effect
 from r2s.diagnose.effects.lens_distortion import undistort_points
-from r2s.diagnose.ranking import NoiseBar, rank, supported
+from r2s.diagnose.stats.ranking import NoiseBar, rank, supported
 from r2s.diagnose.stats.noise import sampling_bar, scale_noise_level
 from r2s.diagnose.stats.steps import judge_step, leaves_structure
 from r2s.diagnose.stats.structure_test import test_structure as structure_test
@@ -145,7 +145,8 @@ def _registration(rng, n: int, spread: float, scale: float = 1.0) -> Registratio
     logs = rng.normal(0.0, spread, n) + np.log(scale)
     objs = tuple(ScaleObs(i + 1, float(np.exp(v)), float(rng.uniform(0.5, 1.2)), 0.95, 0.001)
                  for i, v in enumerate(logs))
-    return RegistrationData(objs, scale_sigma=scale_noise_level(logs, 0.01), scale_floor=0.01)
+    sigma, dof = scale_noise_level(logs, 0.01)
+    return RegistrationData(objs, scale_sigma=sigma, scale_floor=0.01, noise_dof=dof)
 
 
 def test_noise_bar_keeps_false_alarms_rare_on_noisy_priors():
@@ -172,9 +173,10 @@ def test_noise_bar_keeps_false_alarms_rare_on_noisy_priors():
 def test_sampling_bar_is_the_f_quantile():
     rng = np.random.default_rng(0)
     reg = _registration(rng, 4, 0.05)
-    assert reg.scale_sigma > 0.01
-    # k F(1, 3) at 0.99 = 34.12
-    assert sampling_bar(reg, 1, 0.99) == pytest.approx(34.12, abs=0.05)
+    # 4 objects (3 degrees of freedom) pooled with a prior spread worth 4: k F(1, 7) at 0.99
+    assert reg.scale_sigma > 0.01 and reg.noise_dof == 7
+    assert sampling_bar(reg, 1, 0.99) == pytest.approx(12.25, abs=0.05)
+    assert sampling_bar(replace(reg, noise_dof=None), 1, 0.99) == pytest.approx(6.635, abs=0.01)
 
 
 # ---- one step judged ------------------------------------------------------------------

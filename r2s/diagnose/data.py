@@ -59,6 +59,10 @@ class RegistrationData:
     min_fitness: float = 0.5
     scale_floor: Optional[float] = None
     """The floor ``scale_sigma`` was measured against (None: ``scale_sigma`` is the floor)."""
+    noise_dof: Optional[float] = None
+    """Degrees of freedom of ``scale_sigma`` as an estimate (None: a known level)."""
+    noise_prior: tuple = (0.02, 4.0)
+    """(sigma, pseudo-observations) of the prior spread pooled into ``scale_sigma``."""
 
     def used(self) -> tuple[ScaleObs, ...]:
         """Objects whose registration is good enough to say something about scale."""
@@ -263,7 +267,7 @@ class DepthMapData:
     on_object: np.ndarray
 
 
-# ---- table shape: the table points' distance to one plane (r2s.diagnose.table_shape) -----
+# ---- table shape: the table points' distance to one plane (r2s.diagnose.stats.table_shape) -----
 
 @dataclass(frozen=True)
 class TableShapeData:
@@ -286,12 +290,12 @@ class TableShapeData:
 
     @cached_property
     def _tiles(self):
-        from r2s.diagnose.table_shape import table_tiles
+        from r2s.diagnose.stats.table_shape import table_tiles
 
         return table_tiles(self.points_camera, self.K, self.width, self.height, self.grey)
 
     def tiles(self):
-        """:class:`r2s.diagnose.table_shape.TableTiles` of the points (computed once)."""
+        """:class:`r2s.diagnose.stats.table_shape.TableTiles` of the points (computed once)."""
         return self._tiles
 
 

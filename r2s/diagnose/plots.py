@@ -13,7 +13,7 @@ from typing import Optional
 import numpy as np
 
 from r2s.diagnose.data import Residuals
-from r2s.diagnose.structure import sse_by_block
+from r2s.diagnose.stats.summary import sse_by_block
 
 
 def _png(fig) -> bytes:

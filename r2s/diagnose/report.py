@@ -18,17 +18,17 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Optional
 
-from r2s.diagnose.blocks import blocks_of, total_n, total_sse
+from r2s.diagnose.stats.blocks import blocks_of, total_n, total_sse
 from r2s.diagnose.data import Residuals
 from r2s.diagnose.effects import all_effects
-from r2s.diagnose.structure import sse_by_block, structure
+from r2s.diagnose.stats.summary import sse_by_block, structure
 
 
 @dataclass(frozen=True)
 class ReportInput:
     """What the diagnose loop found, for :func:`build_report` (plain data).
 
-    rounds : the ranking of every step (:class:`r2s.diagnose.ranking.Round`); kept : the
+    rounds : the ranking of every step (:class:`r2s.diagnose.stats.ranking.Round`); kept : the
     effects kept (fits); steps : one summary dict per step; before / predicted / after :
     residuals before, as the last kept fit predicts them, measured after the last kept
     rerun; structure_final / unexplained : summaries of the final structure test.
@@ -101,10 +101,9 @@ GT_ROWS = ("state_centroid_error_mm", "state_centroid_error_median_mm", "state_s
            "table_gravity_error_deg", "friction_error")
 
 
-def markdown(report: dict) -> str:
-    """A short human-readable report."""
-    effects = all_effects()
-    lines = [f"# r2s diagnose: {report['scene']}", ""]
+def _decision_lines(report: dict) -> list[str]:
+    """What was found: the kept effects, an unexplained structure, camera or table, ties."""
+    lines: list[str] = []
     if report["decision"]:
         for c in report["chosen"]:
             lines.append(f"**Effect found: `{c['effect']}`** ({c['note']}); "
@@ -127,6 +126,12 @@ def markdown(report: dict) -> str:
         if tie and report["decision"]:
             lines.append(f"\nIndistinguishable on this data (delta BIC within the tie "
                          f"tolerance): {', '.join(tie)}; the first is preferred.")
+    return lines
+
+
+def _step_lines(report: dict) -> list[str]:
+    """The loop's steps as a table."""
+    lines: list[str] = []
     if report.get("steps"):
         lines += ["", "## Steps", "",
                   "| step | effect | claimed blocks | claimed SSE before / predicted / after "
@@ -142,6 +147,15 @@ def markdown(report: dict) -> str:
                 f"{_fmt(gb.get('state_centroid_error_mm'))} -> "
                 f"{_fmt(ga.get('state_centroid_error_mm'))} | "
                 f"{'yes' if st['kept'] else 'no'}: {st['reason']} |")
+    return lines
+
+
+def markdown(report: dict) -> str:
+    """A short human-readable report."""
+    effects = all_effects()
+    lines = [f"# r2s diagnose: {report['scene']}", ""]
+    lines += _decision_lines(report)
+    lines += _step_lines(report)
     lines += ["", "## Ranking", "",
               "| effect | score | delta BIC | explained SSE | k | size | note |",
               "| --- | ---: | ---: | ---: | ---: | ---: | --- |"]

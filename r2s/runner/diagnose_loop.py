@@ -3,9 +3,9 @@
 Orchestration only (it reruns stages, so it lives beside the stages, not in the diagnose
 library); every decision is a library function:
 
-1. measure the residuals (:func:`r2s.diagnose.scene.measure_scene`) and rank the effects
-   not yet in the model (:func:`r2s.diagnose.ranking.rank`); the first one that is
-   supported (:func:`r2s.diagnose.ranking.supported`: BIC, prior, noise bar) and does not
+1. measure the residuals (:func:`r2s.diagnose.measure.scene_dir.measure_scene`) and rank the effects
+   not yet in the model (:func:`r2s.diagnose.stats.ranking.rank`); the first one that is
+   supported (:func:`r2s.diagnose.stats.ranking.supported`: BIC, prior, noise bar) and does not
    leave a structured residual it only partly explains
    (:func:`r2s.diagnose.stats.steps.leaves_structure`) is the step's effect;
 2. rerun the affected stages on a fresh copy of the scene with every kept effect and this
@@ -29,11 +29,11 @@ from pathlib import Path
 from typing import Any, Optional
 
 from r2s.console import ProgressFn, silent_progress
-from r2s.diagnose.blocks import blocks_of, total_sse
+from r2s.diagnose.stats.blocks import blocks_of, total_sse
 from r2s.diagnose.effects.base import Effect, EffectFit
-from r2s.diagnose.ranking import NoiseBar, Round, rank, supported
+from r2s.diagnose.stats.ranking import NoiseBar, Round, rank, supported
 from r2s.runner.rerun import rerun_with_effects, temporary_root
-from r2s.diagnose.scene import Measured, MeasureSettings, measure_scene, scene_gt_errors
+from r2s.diagnose.measure.scene_dir import Measured, MeasureSettings, measure_scene, scene_gt_errors
 from r2s.diagnose.stats.steps import StepJudgement, claimed_blocks, judge_step, leaves_structure
 from r2s.diagnose.stats.structure_test import StructureFinding, test_structure
 

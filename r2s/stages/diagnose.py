@@ -1,9 +1,9 @@
 """Stage ``diagnose``: trace the residual to an effect the model lacks, and measure the fix.
 
 1. Measure the residuals of the current reconstruction (registration, support, depth,
-   physical rollout, observed push): :mod:`r2s.diagnose.scene`.
+   physical rollout, observed push): :mod:`r2s.diagnose.measure.scene_dir`.
 2. Fit every candidate effect of the catalogue and rank them by BIC against "no effect":
-   :mod:`r2s.diagnose.ranking`.
+   :mod:`r2s.diagnose.stats.ranking`.
 3. With an effect found, rerun the affected stages on a temporary copy of the scene with
    the effect in the model, and measure the residual and (with ``gt/``) the ground-truth
    errors again: :mod:`r2s.runner.rerun`.
@@ -24,11 +24,11 @@ from pydantic import Field, field_validator
 import numpy as np
 
 from r2s.diagnose.effects import all_effects
-from r2s.diagnose.gravity import camera_or_table
+from r2s.diagnose.stats.camera_or_table import camera_or_table
 from r2s.diagnose.plots import residual_figure, structure_figure
-from r2s.diagnose.ranking import NoiseBar
+from r2s.diagnose.stats.ranking import NoiseBar
 from r2s.diagnose.report import ReportInput, build_report, markdown
-from r2s.diagnose.scene import MeasureSettings
+from r2s.diagnose.measure.scene_dir import MeasureSettings
 from r2s.errors import R2SError
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
 from r2s.io.manifest import Manifest, load_manifest, save_manifest
@@ -79,6 +79,11 @@ class Options(StageOptions):
     scale_sigma: float = Field(0.01, gt=0, description="Floor of the relative size error of one "
                                                        "prior (the priors' measured spread is "
                                                        "used when larger).")
+    prior_scale_sigma: float = Field(0.02, gt=0, description="Prior spread of one prior's "
+                                                              "size error (log), pooled with "
+                                                              "the measured spread.")
+    prior_scale_dof: float = Field(4.0, ge=0, description="How many objects' worth that "
+                                                          "prior spread counts for.")
     support_sigma_deg: float = Field(0.3, gt=0, description="Noise of each table tilt component, "
                                                             "degrees.")
     min_fitness: float = Field(0.6, ge=0, le=1, description="An object's shape fits the data when "
@@ -135,6 +140,7 @@ def model_not_in_effect(paths: ScenePaths, manifest: Manifest) -> list[str]:
 def settings_of(options: Options) -> MeasureSettings:
     return MeasureSettings(
         scale_sigma=options.scale_sigma, support_sigma_deg=options.support_sigma_deg,
+        prior_scale_sigma=options.prior_scale_sigma, prior_scale_dof=options.prior_scale_dof,
         table_shape_sigma_m=options.table_shape_sigma_m,
         min_fitness=options.min_fitness, max_rmse_m=options.max_rmse_m,
         physics_source=options.physics_source, physics=options.physics,

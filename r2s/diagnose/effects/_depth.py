@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 
 from r2s.diagnose.data import Residuals
-from r2s.diagnose.depth_model import (corrected_registration, corrected_support, correct_depth,
+from r2s.diagnose.effects._depth_model import (corrected_registration, corrected_support, correct_depth,
                                       fit_bias)
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
 from r2s.io.input_scene import InputScene

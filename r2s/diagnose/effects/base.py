@@ -22,7 +22,7 @@ from typing import Literal, Optional
 
 import numpy as np
 
-from r2s.diagnose.blocks import blocks_of, total_n, total_sse
+from r2s.diagnose.stats.blocks import blocks_of, total_n, total_sse
 from r2s.diagnose.data import Residuals
 from r2s.io.input_scene import Camera, InputScene
 from r2s.io.state import SceneState

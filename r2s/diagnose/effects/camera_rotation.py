@@ -14,7 +14,7 @@ import numpy as np
 
 from r2s.diagnose.data import Residuals
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
-from r2s.diagnose.gravity import angle_axis, correction_to_level
+from r2s.diagnose.effects._gravity import angle_axis, correction_to_level
 from r2s.io.input_scene import Camera, InputScene, ObjectSpec
 from r2s.io.state import SceneState
 

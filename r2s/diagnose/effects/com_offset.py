@@ -15,10 +15,10 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from r2s.diagnose.blocks import blocks_of, physics_block, total_sse
+from r2s.diagnose.stats.blocks import blocks_of, physics_block, total_sse
 from r2s.diagnose.data import PhysicsData, Residuals
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
-from r2s.diagnose.wrench import balancing_com_shift, toppling_direction
+from r2s.diagnose.effects._wrench import balancing_com_shift, toppling_direction
 from r2s.io.state import SceneState
 
 MAX_SHIFT_FRACTION = 0.6

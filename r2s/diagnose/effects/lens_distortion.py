@@ -16,7 +16,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from r2s.diagnose.blocks import table_shape_block
+from r2s.diagnose.stats.blocks import table_shape_block
 from r2s.diagnose.data import Residuals, SupportData, TableShapeData
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
 from r2s.geometry.lens import undistort_image, undistort_normalised

@@ -13,10 +13,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from r2s.diagnose.blocks import tilt_vector
+from r2s.diagnose.stats.blocks import tilt_vector
 from r2s.diagnose.data import Residuals
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
-from r2s.diagnose.gravity import angle_axis, correction_to_level
+from r2s.diagnose.effects._gravity import angle_axis, correction_to_level
 from r2s.io.state import SceneState
 
 

@@ -1,8 +1,8 @@
 """Noise levels measured in the scene itself, and what noise alone would make of them.
 
 Priors err in size independently (a few per cent per object); a depth bias moves them all
-together. So the spread of the log prior scales about their mean is the noise level of one
-prior (:func:`scale_noise_level`), and "noise alone" is the same scales with the common part
+together. So the spread of the log prior scales about their mean, pooled with a calibrated
+prior spread, is the noise level of one prior (:func:`scale_noise_level`), and "noise alone" is the same scales with the common part
 removed, drawn again over the objects (a bootstrap: :func:`null_registrations`). An effect
 whose evidence lies in the registration block must explain more than the effect fitted to
 those draws explains, at the chosen quantile (:func:`noise_bar`): the bar that keeps the
@@ -25,20 +25,31 @@ OUTLIER_MADS = 3.5
 it is left out of the spread (the fits are Huber-robust against it too)."""
 
 
-def scale_noise_level(log_scales: np.ndarray, floor: float) -> float:
-    """Noise level of one prior's log scale: the larger of ``floor`` and the sample
-    standard deviation (ddof 1) of the log scales without outliers. The sample deviation,
-    unlike the median absolute deviation used before, is not biased low for a handful of
-    objects (with 6 objects the MAD was below half the true spread in one scene of 4)."""
+def scale_noise_level(log_scales: np.ndarray, floor: float, prior_sigma: float = 0.02,
+                      prior_dof: float = 4.0) -> tuple[float, float | None]:
+    """Noise level of one prior's log scale and its degrees of freedom.
+
+    The sample variance (ddof 1) of the log scales without outliers, pooled with a prior
+    spread ``prior_sigma`` worth ``prior_dof`` observations (calibrated on clean scenes:
+    docs/diagnose.md), so that 3 objects whose priors happen to agree do not make a tiny
+    noise level; at least ``floor``. The sample deviation, unlike the median absolute
+    deviation used before, is not biased low for a handful of objects. Returns
+    ``(sigma, dof)``; ``dof`` is None when the floor set the level (a known noise level)."""
     x = np.asarray(log_scales, dtype=np.float64)
-    if len(x) < 3:
-        return float(floor)
-    med = np.median(x)
-    mad = 1.4826 * np.median(np.abs(x - med))
-    keep = np.abs(x - med) <= OUTLIER_MADS * max(mad, floor)
-    if keep.sum() < 3:
-        keep = np.ones(len(x), dtype=bool)
-    return float(max(floor, np.std(x[keep], ddof=1)))
+    if len(x) >= 3:
+        med = np.median(x)
+        mad = 1.4826 * np.median(np.abs(x - med))
+        keep = np.abs(x - med) <= OUTLIER_MADS * max(mad, floor)
+        x = x[keep] if keep.sum() >= 3 else x
+    m = len(x)
+    ss = float(np.sum((x - x.mean()) ** 2)) if m >= 2 else 0.0
+    dof = prior_dof + max(m - 1, 0)
+    if dof <= 0:
+        return float(floor), None
+    sigma = float(np.sqrt((prior_dof * prior_sigma ** 2 + ss) / dof))
+    if sigma <= floor:
+        return float(floor), None
+    return sigma, float(dof)
 
 
 def null_registrations(reg: RegistrationData, draws: int, seed: int = 0
@@ -54,20 +65,18 @@ def null_registrations(reg: RegistrationData, draws: int, seed: int = 0
     for _ in range(draws):
         pick = rng.choice(centred, size=len(centred), replace=True)
         objs = tuple(replace(o, scale=float(np.exp(v))) for o, v in zip(used, pick))
-        yield RegistrationData(objects=objs, scale_sigma=scale_noise_level(pick, floor),
-                               min_fitness=reg.min_fitness, scale_floor=floor)
+        sigma, dof = scale_noise_level(pick, floor, *reg.noise_prior)
+        yield replace(reg, objects=objs, scale_sigma=sigma, noise_dof=dof)
 
 
 def sampling_bar(reg: RegistrationData, n_params: int, quantile: float) -> float:
     """The explained SSE a ``n_params`` effect reaches on Gaussian noise at ``quantile``
-    when the noise level was measured on the same ``n`` objects: ``k F(k, n - 1)`` (the
-    spread of a handful of objects is itself uncertain: with 4 objects the 99 % bar is 29,
-    not the 6.6 of a known noise level), or ``chi2(k)`` when the floor set the level."""
-    n = len(reg.used())
-    floor = reg.scale_floor if reg.scale_floor is not None else reg.scale_sigma
-    if reg.scale_sigma <= floor * (1.0 + 1e-9) or n < 3:
+    when the noise level is itself an estimate with ``reg.noise_dof`` degrees of freedom:
+    ``k F(k, dof)`` (with 3 objects and the prior worth 4, F(1, 6) at 0.99 gives 13.7; the
+    sample alone, F(1, 2), would give 98.5), or ``chi2(k)`` for a known level (the floor)."""
+    if reg.noise_dof is None:
         return float(chi2.ppf(quantile, n_params))
-    return float(n_params * f_dist.ppf(quantile, n_params, n - 1))
+    return float(n_params * f_dist.ppf(quantile, n_params, reg.noise_dof))
 
 
 def noise_bar(fit_explained: Callable[[Residuals], float], residuals: Residuals,

@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional
 
-from r2s.diagnose.blocks import blocks_of
+from r2s.diagnose.stats.blocks import blocks_of
 from r2s.diagnose.data import Residuals
 from r2s.diagnose.effects.base import EffectFit
 from r2s.diagnose.stats.structure_test import test_structure

@@ -1,7 +1,7 @@
 """A generic residual model: is there structure left that no catalogued effect explains?
 
 The data are the table points' distances to one plane, averaged over image tiles
-(:mod:`r2s.diagnose.table_shape`). Under "nothing left" each tile mean is noise of level
+(:mod:`r2s.diagnose.stats.table_shape`). Under "nothing left" each tile mean is noise of level
 ``sigma`` (the ``table_shape`` block's), so their sum of squares is chi-square with
 ``T - 3`` degrees of freedom (the plane took 3). The test rejects at ``alpha``; a rejected
 residual is described by the generic feature that explains the most of it: image column,

@@ -23,7 +23,7 @@ import numpy as np
 
 from r2s.console import ProgressFn, silent_progress
 from r2s.diagnose.data import Residuals
-from r2s.diagnose.gt_errors import export_gt_errors, metrics_subset, state_gt_errors
+from r2s.diagnose.measure.gt_errors import export_gt_errors, metrics_subset, state_gt_errors
 from r2s.diagnose.measure.interaction import read_push
 from r2s.diagnose.measure.observe import (ObjectModel, depth_residual_map,
                                           interaction_residual, measure_fit_qualities,
@@ -52,6 +52,8 @@ class MeasureSettings:
     """Noise levels and choices of the measurement (the stage's options)."""
 
     scale_sigma: float = 0.01
+    prior_scale_sigma: float = 0.02
+    prior_scale_dof: float = 4.0
     support_sigma_deg: float = 0.3
     table_shape_sigma_m: float = 0.001
     min_fitness: float = 0.6
@@ -170,7 +172,8 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
     progress("registration residual", 0.05)
     qualities = measure_fit_qualities(inp, init_objects,
                                       lambda m, f: progress(m, 0.05 + 0.35 * f))
-    registration = registration_residual(qualities, settings.scale_sigma, settings.min_fitness)
+    registration = registration_residual(qualities, settings.scale_sigma, settings.min_fitness,
+                                         settings.prior_scale_sigma, settings.prior_scale_dof)
     gravity = np.asarray(init_state.gravity, dtype=np.float64)
     support = support_residual(inp, gravity, float(np.radians(settings.support_sigma_deg)))
     progress("depth residual", 0.42)

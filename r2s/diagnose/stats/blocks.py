@@ -16,7 +16,7 @@ Blocks:
 - ``interaction``: per observed object, the 3 components of predicted minus observed
   displacement of a push.
 - ``table_shape``: per image tile, the mean distance of the table points to one plane
-  fitted to all of them (:mod:`r2s.diagnose.table_shape`).
+  fitted to all of them (:mod:`r2s.diagnose.stats.table_shape`).
 """
 
 from __future__ import annotations

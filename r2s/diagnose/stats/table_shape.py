@@ -6,7 +6,7 @@ sensor with an unmodelled error are not: radial lens distortion bends them into 
 depth bias into a pattern that follows the tablecloth. This module fits one plane to the
 table points (camera frame, trimmed least squares) and averages the point-to-plane
 distances over a grid of image tiles: the tile means are the residual block that such
-effects explain (:func:`r2s.diagnose.blocks.table_shape_block`) and the data of the generic
+effects explain (:func:`r2s.diagnose.stats.blocks.table_shape_block`) and the data of the generic
 residual model (:mod:`r2s.diagnose.stats.structure_test`).
 """
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from r2s.console import ProgressFn, silent_progress
-from r2s.diagnose.blocks import blocks_of, total_n, total_sse
+from r2s.diagnose.stats.blocks import blocks_of, total_n, total_sse
 from r2s.diagnose.data import Residuals
 from r2s.diagnose.effects.base import Effect, EffectFit
 from r2s.diagnose.stats.noise import noise_bar
