@@ -129,7 +129,15 @@ def run(
                  overrides=_parse_sets(set_))
 
 
-@app.command()
+def _synth_epilog() -> Optional[str]:
+    if not (_WANTS_HELP and "synth" in sys.argv[1:]):
+        return None
+    from r2s.synth.options import set_help
+
+    return set_help()
+
+
+@app.command(epilog=_synth_epilog())
 def synth(
     out_dir: Path = typer.Argument(..., help="Scene directory to create."),
     objects: str = typer.Option("ycb", help="Object set: ycb, pybullet, mixed, or a "
@@ -144,12 +152,20 @@ def synth(
     push: bool = typer.Option(False, "--push", help="Also push one object on the ground truth "
                                                     "and write what the camera saw after it "
                                                     "(input/interaction/)."),
+    set_: Optional[List[str]] = typer.Option(
+        None, "--set", help="Synth option as key=value (repeatable), e.g. realism=realsense "
+                            "(a realistic RealSense-like capture); see the list below."),
 ) -> None:
     """Make a benchmark scene: settled clutter, rendered RGB-D and masks, priors, gt/."""
-    from r2s.synth.generate import SynthOptions, synthesize
+    from r2s.synth.options import SynthOptions, options_from_command_line
 
-    opts = SynthOptions(objects=objects, count=count, seed=seed, noise=noise,
-                        effects=_parse_sets(effect), width=width, height=height, push=push)
+    given = dict(objects=objects, count=count, seed=seed, noise=noise, width=width,
+                 height=height, push=push)
+    defaults = SynthOptions.model_fields
+    explicit = {k: v for k, v in given.items() if v != defaults[k].default}
+    explicit["effects"] = _parse_sets(effect)
+    opts = options_from_command_line(explicit, _parse_sets(set_))
+    from r2s.synth.generate import synthesize  # (imports PyBullet: after the checks)
     from r2s.console import stage_progress
 
     with stage_progress("synth") as progress:
@@ -216,6 +232,22 @@ def report(
     from r2s.batch import aggregate_metrics
 
     aggregate_metrics(scene_dirs, out=out, label=label)
+
+
+@app.command()
+def view(
+    scene_dir: Path = typer.Argument(..., help="Scene directory with export/ (r2s run first)."),
+    port: int = typer.Option(8080, help="Port to serve on."),
+    host: str = typer.Option("127.0.0.1",
+                             help="Address to bind (0.0.0.0 to share on the network)."),
+    screenshot: Optional[Path] = typer.Option(
+        None, help="Save a picture of the page (headless Chromium) to this PNG and exit."),
+) -> None:
+    """Look at the scene in the browser: observed points, reconstruction, collision pieces,
+    contact graph, and a player of the judge's rollout (objects that moved in red)."""
+    from r2s.viewer.cli_entry import view_scene
+
+    view_scene(scene_dir, host=host, port=port, screenshot=screenshot)
 
 
 def main() -> None:

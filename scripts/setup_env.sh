@@ -23,6 +23,16 @@ if [ ${#need[@]} -gt 0 ]; then
   fi
 fi
 
+# Optional: Chromium runs the test of 'r2s view' in a headless browser; that test skips
+# (saying why) when it is missing, so setup goes on if it cannot be installed.
+if ! command -v chromium >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1; then
+  SUDO=""
+  [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null 2>&1 && SUDO="sudo"
+  echo "installing Debian's chromium (optional, for the viewer's browser test)"
+  { $SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium; } || \
+    echo "warning: could not install chromium; the viewer's browser test will be skipped" >&2
+fi
+
 if [ ! -x "$VENV/bin/python" ]; then
   "$PYTHON" -m venv "$VENV"
 fi

@@ -143,7 +143,8 @@ def test_model_hash_covers_only_the_levels_a_stage_applies():
     assert model_hashes(get_stage("export"), manifest) == {}  # no model: no extra key
     manifest.model = model
     assert model_hashes(get_stage("init"), manifest) == {}
-    assert list(model_hashes(get_stage("export"), manifest)) == ["manifest.model[state]"]
+    # export applies both levels: the state's effects, and the input's for its observation check
+    assert list(model_hashes(get_stage("export"), manifest)) == ["manifest.model[input,state]"]
     manifest.model = {"effects": {"gremlins": {}}}
     assert model_hashes(get_stage("init"), manifest)  # unknown: counts for every level
     with pytest.raises(UnknownEffectError) as err:

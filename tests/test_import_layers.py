@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PKG = ROOT / "r2s"
 
 LIBRARIES = ("geometry", "graph", "sim", "geomopt", "physopt", "texture", "render", "metrics",
-             "interaction", "diagnose", "io", "synth")
+             "interaction", "diagnose", "io", "synth", "pictures", "viewer")
 """Library packages (docs/architecture.md): they may import each other and the low-level
 modules (r2s.errors, r2s.console, r2s.scene_model), never what runs stages."""
 

@@ -9,7 +9,8 @@ import trimesh
 from r2s.geometry.camera import pixel_rays
 from r2s.io.input_scene import Camera
 from r2s.metrics.rendering import (PSNR_CAP_DB, masked_psnr, masked_ssim, render_scene_rgb,
-                                   rendering_metrics, side_by_side, side_by_side_png)
+                                   rendering_metrics, side_by_side, side_by_side_png,
+                                   error_colour_bar)
 from r2s.render.gbuffer import interpolate, rasterize
 from r2s.render.shade import MeshColour, shade
 from r2s.render.texel import bilinear_footprint, sample
@@ -168,7 +169,11 @@ def test_side_by_side_picture(tmp_path):
     assert pic.shape == (30, 120, 3)
     assert np.all(pic[20, 80 + 20] == [255, 255, 0])  # full-scale error, inside the mask
     side_by_side_png(a, b, tmp_path / "sbs.png", mask)
-    assert Image.open(tmp_path / "sbs.png").size == (120, 30)
+    bar = error_colour_bar(120)
+    assert Image.open(tmp_path / "sbs.png").size == (120, 30 + bar.shape[0])
+    written = np.asarray(Image.open(tmp_path / "sbs.png").convert("RGB"))
+    np.testing.assert_array_equal(written[:30], pic)
+    np.testing.assert_array_equal(written[30:], bar)
 
 
 def test_texel_convention_matches_trimesh_uv_lookup():

@@ -11,7 +11,10 @@ import numpy as np
 import trimesh
 from scipy import ndimage
 
+from PIL import Image, ImageDraw
+
 from r2s.geometry.raycast import raycast_view
+from r2s.pictures.annotate import label, mask_anchor
 
 PALETTE = np.array([
     [230, 25, 75], [60, 180, 75], [255, 225, 25], [0, 130, 200], [245, 130, 48],
@@ -50,8 +53,8 @@ def crop_box(masks: list[np.ndarray], margin: float = 0.2, min_margin_px: int = 
 
 
 def fit_overlay(rgb: np.ndarray, rendered: np.ndarray, observed_masks: np.ndarray,
-                observed_ids: list[int], alpha: float = 0.35, zoom_to_px: int | None = None
-                ) -> np.ndarray:
+                observed_ids: list[int], alpha: float = 0.35, zoom_to_px: int | None = None,
+                labels: dict[int, str] | None = None) -> np.ndarray:
     """(h, w, 3) uint8 picture of a fit.
 
     Parameters
@@ -63,6 +66,8 @@ def fit_overlay(rgb: np.ndarray, rendered: np.ndarray, observed_masks: np.ndarra
     alpha : tint strength of the rendered silhouettes.
     zoom_to_px : when given, crop to the objects and enlarge the crop (by an integer
         factor, up to 4) so its longer side is about this many pixels.
+    labels : when given, each object's id and label (``"3 mug"``) is written at the
+        centroid of its observed mask (see :func:`label_anchors`).
     """
     if zoom_to_px is not None:
         r0, r1, c0, c1 = crop_box([rendered >= 0, observed_masks > 0])
@@ -80,4 +85,38 @@ def fit_overlay(rgb: np.ndarray, rendered: np.ndarray, observed_masks: np.ndarra
         out[sil] = (1 - alpha) * out[sil] + alpha * color
         out[_outline(sil, line)] = color
         out[_outline(observed_masks == obj_id, line)] = 255.0
-    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+    out = np.clip(np.rint(out), 0, 255).astype(np.uint8)
+    if labels is not None:
+        out = _write_ids(out, observed_masks, observed_ids, labels)
+    return out
+
+
+def label_anchors(observed_masks: np.ndarray, ids: list[int]) -> dict[int, tuple[float, float]]:
+    """Pixel ``(x, y)`` where each id's label goes: the centroid of its mask (the nearest mask
+    pixel when the centroid falls outside, e.g. a mug's handle); ids absent from the masks
+    are left out."""
+    out = {}
+    for obj_id in ids:
+        at = mask_anchor(observed_masks == obj_id)
+        if at is not None:
+            out[int(obj_id)] = at
+    return out
+
+
+def _write_ids(image: np.ndarray, observed_masks: np.ndarray, ids: list[int],
+               labels: dict[int, str]) -> np.ndarray:
+    pil = Image.fromarray(image)
+    draw = ImageDraw.Draw(pil)
+    size_px = int(np.clip(min(image.shape[:2]) / 32, 11, 22))
+    for k, obj_id in enumerate(ids):
+        at = label_anchors(observed_masks, [obj_id]).get(int(obj_id))
+        if at is None:
+            continue
+        colour = tuple(int(c) for c in PALETTE[k % len(PALETTE)])
+        text = f"{obj_id} {labels.get(obj_id, '')}".strip()
+        x, y = at
+        r = max(3, size_px // 4)
+        draw.ellipse([x - r, y - r, x + r, y + r], fill=colour, outline=(255, 255, 255))
+        label(draw, (x, y - r - 0.8 * size_px), text, fg=(255, 255, 255), bg=(0, 0, 0),
+              size_px=size_px, bounds=(pil.width, pil.height))
+    return np.asarray(pil)

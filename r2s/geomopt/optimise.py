@@ -5,6 +5,14 @@ L_geom = lambda_pen * sum over pair directions of penetration(a's samples in b's
        + lambda_con * sum over support edges of contact(child's samples in parent's SDF
                                                       or the support plane)
        + lambda_anchor * sum over objects of anchor(rotation, translation)
+       + lambda_free_space * sum over objects of free_space(samples vs the observed view)
+
+The free-space term (:mod:`r2s.geomopt.free_space`, only when the problem carries an
+observed view) keeps each object where the camera saw it: samples in space the camera saw
+empty are pulled sideways towards the object's mask. By default it acts in a second pass
+(``free_space_iterations``) after the optimisation above has run without it: objects then
+only slide across gravity and turn about it, and the pass's result is kept only when it
+lowers the full loss, so heights, tilts and contacts stay as the first pass left them.
 
 Penetration pairs are every support pair and every proximity pair, in both directions.
 Terms follow the paper (:mod:`r2s.geomopt.losses`); the choices that make them behave:
@@ -30,7 +38,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -38,6 +46,7 @@ import torch
 from r2s.console import ProgressFn, silent_progress
 from r2s.geometry.sdf import SdfGrid
 from r2s.geometry.sdf_torch import pack_grids, plane_sdf, sdf_lookup_packed
+from r2s.geomopt.free_space import FreeSpaceTerm, ObservedView
 from r2s.geomopt.losses import anchor_term, contact_term, penetration_term
 from r2s.geomopt.poses import axis_angle_to_matrix, move_points, updated_poses
 
@@ -60,6 +69,19 @@ class GeomParams:
     """Scale of the rotation anchor, as the displacement of the object's farthest point."""
     top_k: int = 10
     length_scale_m: float = 1e-3
+    lambda_free_space: float = 0.0
+    """Weight of the free-space term (mean over samples of metres outside the mask band,
+    over ``length_scale_m``); used only when the problem has an observed view."""
+    free_space_band_px: float = 2.0
+    free_space_margin_m: float = 0.015
+    """A sample violates free space when the observed depth at its pixel is at least this
+    far behind it and the pixel is farther than ``free_space_band_px`` from its mask."""
+    free_space_iterations: int = 100
+    """Iterations of the pass after the optimisation where objects only slide across
+    gravity and turn about it (see :func:`_across_gravity_pass`; 0: none)."""
+    free_space_horizontal: bool = True
+    """The free-space term moves objects only across gravity and turns them only about it:
+    it does not tilt them off their supports (their height and tilt answer to contact)."""
     contact_rotates: bool = False
     """Whether the contact term may rotate objects and move them sideways. TopK-min
     rewards tilting a flat face (a tilted face has lower corners), a feedback that tips
@@ -86,6 +108,9 @@ class GeomParams:
     stop_gap_m: float = 5e-4
     """Stop early (after ``min_iterations``, checked every ``check_every``) once no
     penetration is deeper and no support gap wider than these."""
+    stop_free_space: float = 0.05
+    """... and the free-space term (mean distance outside the mask band, mm, summed over
+    objects) is below this."""
     check_every: int = 10
     tolerance: float = 5e-3
     patience: int = 30
@@ -114,6 +139,8 @@ class GeomProblem:
     penetration_pairs: list[tuple[int, int]] = field(default_factory=list)
     up: np.ndarray | None = None
     """(3,) against gravity; the plane normal when None."""
+    view: ObservedView | None = None
+    """What the camera saw (objects in the order of ``ids``), for the free-space term."""
 
 
 @dataclass
@@ -129,6 +156,10 @@ class GeomResult:
     seconds: float
     before: dict[str, float]
     after: dict[str, float]
+    free_space_before: list[float] | None = None
+    free_space_after: list[float] | None = None
+    """(M,) share of each object's samples in space the camera saw empty (None without a
+    view)."""
 
 
 def object_radii(problem: GeomProblem) -> np.ndarray:
@@ -148,8 +179,14 @@ class _Tensors:
     in parent) use all samples, since TopK-min needs the closest ones wherever they are.
     """
 
-    def __init__(self, problem: GeomProblem, dtype: torch.dtype = torch.float32):
+    def __init__(self, problem: GeomProblem, dtype: torch.dtype = torch.float32,
+                 params: GeomParams | None = None):
         self.dtype = dtype
+        params = params or GeomParams()
+        self.free_space = None
+        if problem.view is not None:
+            self.free_space = FreeSpaceTerm(problem.view, params.free_space_band_px,
+                                            params.free_space_margin_m, dtype)
         self.m = len(problem.ids)
         init = torch.as_tensor(problem.init_world_from_object, dtype=dtype)
         self.init_rot, self.init_trans = init[:, :3, :3], init[:, :3, 3]
@@ -209,6 +246,16 @@ class _Tensors:
             - ((self.centres + trans)[:, None, :] @ a)[:, 0]
         return a, b
 
+    def horizontal(self, trans: torch.Tensor, omega: torch.Tensor
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``trans`` with its gradient across ``up`` and ``omega`` with its gradient along
+        ``up`` (same values): a move across gravity and a turn about it."""
+        along = trans @ self.up
+        t = trans - (along - along.detach())[:, None] * self.up
+        spin = omega @ self.up
+        w = omega.detach() + (spin - spin.detach())[:, None] * self.up
+        return t, w
+
     def vertical(self, trans: torch.Tensor) -> torch.Tensor:
         """``trans`` with its gradient projected on ``up`` (same value)."""
         along = trans @ self.up
@@ -265,6 +312,13 @@ def _terms(t: _Tensors, x: torch.Tensor, radius: torch.Tensor, params: GeomParam
     pen_pairs = torch.relu(-d_pen).sum() / (t.n * scale)
     plane = t.plane_distances(world)
     pen_table = penetration_term(plane, scale).sum()
+    free_space = torch.zeros((), dtype=t.dtype)
+    if t.free_space is not None and params.lambda_free_space > 0:
+        world_fs = world
+        if params.free_space_horizontal:
+            trans_h, omega_h = t.horizontal(trans, omega)
+            world_fs = t.moved(omega_h, trans_h)[1]
+        free_space = t.free_space(world_fs)[0].sum() / (t.n * scale)
     trans_c = trans
     if not params.contact_rotates:
         # the contact term only lowers objects along gravity (see GeomParams.contact_rotates)
@@ -278,9 +332,10 @@ def _terms(t: _Tensors, x: torch.Tensor, radius: torch.Tensor, params: GeomParam
         contact = contact + contact_term(plane[t.table_children], params.top_k, scale).sum()
     anchor = anchor_term(rho, trans, params.sigma_rotation_m, params.sigma_translation_m).sum()
     total = (params.lambda_penetration * (pen_pairs + pen_table)
-             + params.lambda_contact * contact + params.lambda_anchor * anchor)
+             + params.lambda_contact * contact + params.lambda_anchor * anchor
+             + params.lambda_free_space * free_space)
     return {"total": total, "penetration_pairs": pen_pairs, "penetration_table": pen_table,
-            "contact": contact, "anchor": anchor}
+            "contact": contact, "anchor": anchor, "free_space": free_space}
 
 
 def measure(problem: GeomProblem, omega: np.ndarray | None = None,
@@ -293,6 +348,22 @@ def measure(problem: GeomProblem, omega: np.ndarray | None = None,
     tr = torch.zeros((m, 3), dtype=t.dtype) if trans is None else torch.as_tensor(trans, dtype=t.dtype)
     t.cull(om, tr, 0.0)
     return _measure(t, om, tr)
+
+
+def free_space_shares(problem: GeomProblem, params: GeomParams = GeomParams(),
+                      omega: np.ndarray | None = None, trans: np.ndarray | None = None
+                      ) -> list[float] | None:
+    """(M,) share of each object's samples in space the camera saw empty (None without a view)."""
+    if problem.view is None:
+        return None
+    t = _Tensors(problem, params=params)
+    m = len(problem.ids)
+    om = torch.zeros((m, 3), dtype=t.dtype) if omega is None else torch.as_tensor(omega, dtype=t.dtype)
+    tr = torch.zeros((m, 3), dtype=t.dtype) if trans is None else torch.as_tensor(trans, dtype=t.dtype)
+    with torch.no_grad():
+        _, world = t.moved(om, tr)
+        violating = t.free_space(world)[1]
+    return [float(x) for x in violating.to(t.dtype).mean(dim=1)]
 
 
 def _measure(t: _Tensors, om: torch.Tensor, tr: torch.Tensor) -> dict[str, float]:
@@ -335,9 +406,57 @@ def optimise_poses(problem: GeomProblem, params: GeomParams = GeomParams(),
         torch.set_num_threads(threads)
 
 
+def _across_gravity_pass(t: _Tensors, x0: np.ndarray, value0: float, radius: torch.Tensor,
+                         params: GeomParams, history: dict[str, list[float]]) -> np.ndarray:
+    """Second pass: the same loss, but objects only slide across gravity and turn about it.
+
+    Objects resting exactly on their supports feel the contact term's constant pull down
+    and bounce on the first steps of the full optimisation, whose best iterate is then
+    often its start: the free-space term never acts. Height and tilt are settled by then,
+    so this pass freezes them (the gradient is projected on moves across gravity and turns
+    about it) and lets the free-space, penetration and anchor terms place the objects.
+    Returns the better of ``x0`` (total ``value0``) and this pass's best iterate, (M, 6).
+    """
+    up = t.up
+    keep = torch.zeros((6, 6), dtype=t.dtype)
+    keep[:3, :3] = torch.eye(3, dtype=t.dtype) - torch.outer(up, up)
+    keep[3:, 3:] = torch.outer(up, up)
+    x = torch.as_tensor(x0, dtype=t.dtype).clone().requires_grad_(True)
+    mom = torch.zeros_like(x)
+    sq = torch.zeros((x.shape[0], 1), dtype=t.dtype)
+    beta1, beta2, eps = params.beta1, params.beta2, 1e-12
+    step_scale = torch.tensor([1.0, 1.0, 1.0] + [params.rotation_step_ratio] * 3, dtype=t.dtype)
+    best = (value0, x0)
+    n = params.free_space_iterations
+    for it in range(n):
+        lr = params.lr_translation_m * params.lr_final_ratio ** (it / max(1, n - 1))
+        if it % params.recull_every == 0:
+            t.cull(x.detach()[:, 3:] / radius, x.detach()[:, :3],
+                   0.005 + 2.0 * params.recull_every * lr)
+        x.grad = None
+        terms = _terms(t, x, radius, params)
+        terms["total"].backward()
+        value = float(terms["total"].detach())
+        history.setdefault("free_space_pass", []).append(value)
+        if value < best[0]:
+            best = (value, x.detach().numpy().copy())
+        with torch.no_grad():
+            g = x.grad @ keep  # keep is symmetric: projects each object's 6-vector
+            mom.mul_(beta1).add_(g, alpha=1 - beta1)
+            sq.mul_(beta2).add_((g * g).sum(dim=1, keepdim=True), alpha=1 - beta2)
+            m_hat = mom / (1 - beta1 ** (it + 1))
+            v_hat = sq / (1 - beta2 ** (it + 1))
+            x.sub_(lr * step_scale * m_hat / (v_hat.sqrt() + eps))
+    return best[1]
+
+
 def _optimise(problem: GeomProblem, params: GeomParams, progress: ProgressFn) -> GeomResult:
     t0 = time.perf_counter()
-    t = _Tensors(problem)
+    t = _Tensors(problem, params=params)
+    observed = t.free_space is not None and params.lambda_free_space > 0
+    two_pass = observed and params.free_space_iterations > 0
+    # with the second pass, the first is the optimisation without the view (module doc)
+    first = replace(params, lambda_free_space=0.0) if two_pass else params
     m = len(problem.ids)
     radius = torch.as_tensor(object_radii(problem), dtype=t.dtype)[:, None]
     x = torch.zeros((m, 6), dtype=t.dtype, requires_grad=True)
@@ -347,7 +466,7 @@ def _optimise(problem: GeomProblem, params: GeomParams, progress: ProgressFn) ->
     step_scale = torch.tensor([1.0, 1.0, 1.0] + [params.rotation_step_ratio] * 3, dtype=t.dtype)
     history: dict[str, list[float]] = {k: [] for k in
                                        ("total", "penetration_pairs", "penetration_table",
-                                        "contact", "anchor", "lr_m")}
+                                        "contact", "anchor", "free_space", "lr_m")}
     best = (math.inf, 0, np.zeros((m, 6)))
     converged = False
     it = 0
@@ -358,7 +477,7 @@ def _optimise(problem: GeomProblem, params: GeomParams, progress: ProgressFn) ->
             t.cull(x.detach()[:, 3:] / radius, x.detach()[:, :3], margin)
         if x.grad is not None:
             x.grad = None
-        terms = _terms(t, x, radius, params)
+        terms = _terms(t, x, radius, first)
         terms["total"].backward()
         value = float(terms["total"].detach())
         for k, v in terms.items():
@@ -377,7 +496,8 @@ def _optimise(problem: GeomProblem, params: GeomParams, progress: ProgressFn) ->
             xd = x.detach()
             state = _measure(t, xd[:, 3:] / radius, xd[:, :3])
             if (max(state["max_penetration_pairs_m"], state["max_penetration_table_m"])
-                    <= params.stop_penetration_m and state["max_support_gap_m"] <= params.stop_gap_m):
+                    <= params.stop_penetration_m and state["max_support_gap_m"] <= params.stop_gap_m
+                    and history["free_space"][-1] <= params.stop_free_space):
                 converged = True
                 break
         if it + 1 >= params.min_iterations and it >= params.patience:
@@ -389,13 +509,22 @@ def _optimise(problem: GeomProblem, params: GeomParams, progress: ProgressFn) ->
         if it % 10 == 0:
             progress(f"geometry optimisation: loss {value:.3g}", it / params.iterations)
     with torch.no_grad():  # the last step has not been scored yet
-        final = float(_terms(t, x, radius, params)["total"])
-    _, best_it, xb = best
-    if final < best[0]:
-        best_it, xb = it + 1, x.detach().numpy().copy()
+        final = float(_terms(t, x, radius, first)["total"])
+    best_value, best_it, xb = best
+    if final < best_value:
+        best_value, best_it, xb = final, it + 1, x.detach().numpy().copy()
+    if two_pass:
+        with torch.no_grad():
+            t.cull(torch.as_tensor(xb[:, 3:], dtype=t.dtype) / radius,
+                   torch.as_tensor(xb[:, :3], dtype=t.dtype), 0.0)
+            best_value = float(_terms(t, torch.as_tensor(xb, dtype=t.dtype), radius,
+                                      params)["total"])
+        xb = _across_gravity_pass(t, xb, best_value, radius, params, history)
     tr, om = xb[:, :3], xb[:, 3:] / radius.numpy()
     poses = updated_poses(problem.init_world_from_object, problem.centres_world_m, om, tr)
     return GeomResult(world_from_object=poses, omega=om, translation_m=tr, history=history,
                       iterations=it + 1, converged=converged, best_iteration=best_it,
                       seconds=time.perf_counter() - t0, before=measure(problem),
-                      after=measure(problem, om, tr))
+                      after=measure(problem, om, tr),
+                      free_space_before=free_space_shares(problem, params),
+                      free_space_after=free_space_shares(problem, params, om, tr))

@@ -6,7 +6,7 @@ import io
 
 import numpy as np
 
-TERMS = ("total", "penetration_pairs", "penetration_table", "contact", "anchor")
+TERMS = ("total", "penetration_pairs", "penetration_table", "contact", "anchor", "free_space")
 
 
 def loss_plot(history: dict[str, list[float]], title: str = "geometry optimisation") -> bytes:

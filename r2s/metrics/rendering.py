@@ -24,6 +24,7 @@ from skimage.metrics import structural_similarity
 
 from r2s.io.atomic import atomic_write_bytes
 from r2s.io.input_scene import Camera
+from r2s.pictures.annotate import colour_bar, heat_colour, label
 from r2s.render.gbuffer import rasterize
 from r2s.render.shade import mesh_colour, shade
 
@@ -195,9 +196,8 @@ def render_scene_rgb(meshes_world: Sequence[trimesh.Trimesh], camera: Camera,
 
 def _panel_label(img: np.ndarray, text: str) -> np.ndarray:
     pil = Image.fromarray(img)
-    draw = ImageDraw.Draw(pil)
-    draw.rectangle([0, 0, 7 * len(text) + 6, 14], fill=(0, 0, 0))
-    draw.text((3, 2), text, fill=(255, 255, 255))
+    size_px = int(np.clip(img.shape[0] / 34, 8, 14))          # small images keep their pixels
+    label(ImageDraw.Draw(pil), (0, 0), text, anchor="top-left", size_px=size_px)
     return np.asarray(pil)
 
 
@@ -211,21 +211,32 @@ def side_by_side(images: Sequence[np.ndarray], labels: Sequence[str],
     first = images[0].astype(np.float64)
     err = np.abs(images[-1].astype(np.float64) - first).mean(axis=2) / ERROR_FULL_SCALE
     err = np.clip(err, 0.0, 1.0)
-    heat = np.stack([np.clip(2 * err, 0, 1), np.clip(2 * err - 1, 0, 1), np.zeros_like(err)],
-                    axis=-1)
-    heat = np.round(heat * 255).astype(np.uint8)
+    heat = heat_colour(err)
     if object_mask is not None:
         dim = (0.25 * first).astype(np.uint8)
         heat = np.where(np.asarray(object_mask, bool)[..., None], heat, dim)
     panels = [_panel_label(np.ascontiguousarray(im), lab) for im, lab in zip(images, labels)]
-    panels.append(_panel_label(heat, "|error|"))
+    panels.append(_panel_label(heat, "|error|" if object_mask is None
+                               else "|error| on the objects (see the colour bar)"))
     return np.concatenate(panels, axis=1)
+
+
+def error_colour_bar(width_px: int) -> np.ndarray:
+    """(h, width_px, 3) uint8 colour bar of the error panel: mean absolute error over the
+    RGB channels, 0 to :data:`ERROR_FULL_SCALE` 8-bit levels (saturated above)."""
+    full = ERROR_FULL_SCALE
+    return colour_bar(width_px, heat_colour, full,
+                      "|error| panel: mean |observed - rendered| over RGB, 8-bit levels "
+                      "(yellow: 128 or more)",
+                      ticks=[0, full / 4, full / 2, 3 * full / 4, full], tick_format="{:.0f}")
 
 
 def side_by_side_png(observed: np.ndarray, rendered: np.ndarray, path: Path,
                      object_mask: Optional[np.ndarray] = None) -> None:
-    """Write observed | rendered | abs error (see :func:`side_by_side`) as a PNG, atomically."""
+    """Write observed | rendered | abs error (see :func:`side_by_side`) as a PNG, atomically,
+    with the error panel's colour bar below (:func:`error_colour_bar`)."""
     buf = io.BytesIO()
-    Image.fromarray(side_by_side([observed, rendered], ["observed", "rendered"],
-                                 object_mask)).save(buf, format="PNG", compress_level=1)
+    panels = side_by_side([observed, rendered], ["observed", "rendered"], object_mask)
+    picture = np.concatenate([panels, error_colour_bar(panels.shape[1])], axis=0)
+    Image.fromarray(picture).save(buf, format="PNG", compress_level=1)
     atomic_write_bytes(Path(path), buf.getvalue())

@@ -122,9 +122,13 @@ def _print_results(results: list[StageResult]) -> None:
     rows = []
     for r in results:
         status = "[green]ran[/green]" if r.ran else f"[dim]{r.reason}[/dim]"
-        brief = ", ".join(f"{k}={_fmt(v)}" for k, v in list(r.summary.items())[:4])
+        brief = ", ".join(f"{k}={_fmt(v)}" for k, v in list(r.summary.items())[:4]
+                          if k != "warnings")
         rows.append([r.name, status, f"{r.seconds:.1f}", brief])
     print_table("stages", ["stage", "status", "seconds", "summary"], rows)
+    for r in results:
+        for warning in r.summary.get("warnings") or []:
+            console.print(f"[yellow]warning:[/yellow] {r.name}: {warning}")
     for r in results:
         if r.name == "evaluate" and r.summary:
             _print_metrics(r.summary)

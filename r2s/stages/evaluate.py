@@ -3,15 +3,23 @@
 Reads only what an outside tool would: ``export/`` (SCENE_FORMAT.md), ``gt/`` and
 ``input/camera.json`` (for the picture; a camera rotation kept in the scene's model by
 ``r2s diagnose --set apply=true`` corrects it, as it did init's). Writes ``evaluate/metrics.json`` and
-``evaluate/rollout.png`` (first and last frame of the rollout seen by the input camera).
+``evaluate/rollout.png`` (first and last frame of the rollout seen by the input camera; the
+objects that moved are outlined, with arrows and their displacement, see
+:mod:`r2s.pictures.rollout_picture`).
 
 Scene-level keys of metrics.json: ``stability_ratio``, ``settling_time_s``,
 ``mean_linear_speed_mps``, ``mean_angular_speed_radps`` (rollout under gravity),
 ``max_penetration_mm``, ``mean_penetration_mm``, ``floating_objects`` (before the rollout),
 ``chamfer_mm``, ``fscore``, ``fscore_threshold_mm``, ``iou``, ``centroid_error_mm``,
 ``rotation_error_deg`` (means over the objects matched by id with gt; null without gt;
-the rotation error only over objects whose export entry says ``"source": "prior"``), plus
-``objects`` (the same per object) and ``options``.
+the rotation error only over objects whose export entry says ``"source": "prior"``),
+observation consistency with or without gt (:mod:`r2s.metrics.observation`):
+``silhouette_iou`` (pooled), ``min_silhouette_iou`` (worst object with >= 1000 mask px),
+``free_space_violation`` (mean over objects), ``ucd_mm`` (mean), ``max_displacement_m`` /
+``max_displacement_deg`` (from init, as export's ``observation`` blocks say) and
+``flagged_objects``, plus ``objects`` (the same per object) and ``options``.
+``evaluate/observation.png`` shows the rendered silhouettes over the input image, their
+free-space violations in red.
 """
 
 from __future__ import annotations
@@ -27,22 +35,26 @@ from PIL import Image
 from pydantic import Field
 
 from r2s.console import ProgressFn
-from r2s.scene_model import corrected_camera
-from r2s.errors import StageError
+from r2s.scene_model import corrected_camera, corrected_input
+from r2s.errors import R2SError, StageError
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json
-from r2s.io.input_scene import load_camera, load_masks, load_rgb
+from r2s.io.input_scene import load_camera, load_input, load_masks, load_rgb
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import METRICS_FILE, ScenePaths
 from r2s.io.scene_json import ExportObject, GtScene, read_gt_scene
 from r2s.metrics.geometry import (centroid_error_mm, posed, rotation_error_deg, surface_metrics,
                                   volumetric_iou)
+from r2s.metrics.observation import (SceneObservation, observation_picture, observe_scene,
+                                     picture_colour)
 from r2s.metrics.penetration import (PYBULLET_MESH_MARGIN_M, SUPPORT_ID, PenetrationMetrics,
                                      penetration_metrics, scene_distances)
 from r2s.metrics.rendering import render_scene_rgb, rendering_metrics, side_by_side_png
+from r2s.metrics.motion import object_motions
 from r2s.metrics.stability import object_stability, scene_stability
+from r2s.pictures.rollout_picture import Frame, rollout_picture
 from r2s.sim.pybullet_bodies import connect_direct
 from r2s.sim.pybullet_scene import LoadedScene, load_export_scene
-from r2s.sim.render import colour_bodies, render_rgb, scaled_intrinsics, side_by_side
+from r2s.sim.render import colour_bodies, render, scaled_intrinsics
 from r2s.sim.rollout import Trajectory, rollout
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.io.manifest import Manifest
@@ -52,6 +64,8 @@ SCENE_KEYS: tuple[str, ...] = (
     "max_penetration_mm", "mean_penetration_mm", "floating_objects",
     "chamfer_mm", "fscore", "fscore_threshold_mm", "iou", "centroid_error_mm",
     "rotation_error_deg", "psnr", "ssim", "lpips",
+    "silhouette_iou", "min_silhouette_iou", "free_space_violation", "ucd_mm",
+    "max_displacement_m", "max_displacement_deg", "flagged_objects",
 )
 """Scene-level keys of metrics.json (and of the stage summary)."""
 
@@ -83,7 +97,8 @@ class Options(StageOptions):
 
 
 def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path]:  # noqa: ARG001
-    return [paths.export, paths.gt, paths.camera, paths.rgb, paths.masks]
+    return [paths.export, paths.gt, paths.camera, paths.rgb, paths.masks, paths.depth_png,
+            paths.depth_npy, paths.objects]
 
 
 def _rendering(paths: ScenePaths, export_objects: list, model: dict
@@ -99,6 +114,55 @@ def _rendering(paths: ScenePaths, export_objects: list, model: dict
               for o in export_objects]
     rendered, _ = render_scene_rgb(meshes, cam, ids=[o.id for o in export_objects])
     return rendering_metrics(observed, rendered, object_mask), (observed, rendered, object_mask)
+
+
+def _observation(paths: ScenePaths, export_objects: list, model: dict
+                 ) -> tuple[Optional[SceneObservation], Optional[np.ndarray], str]:
+    """Observation metrics of export/ against the input view, the picture, or why not."""
+    try:
+        view = corrected_input(load_input(paths.root), model)
+    except R2SError as exc:
+        return None, None, f"no input view: {exc}"
+    meshes = [load_mesh(paths.export / o.visual_mesh).apply_transform(np.asarray(o.world_from_object))
+              for o in export_objects]
+    ids = [o.id for o in export_objects]
+    scene = observe_scene(meshes, ids, view.camera.K, view.camera.world_from_camera,
+                          view.depth_m, view.masks)
+    for entry, o in zip(scene.objects, export_objects):  # displacement as export measured it
+        block = (o.model_extra or {}).get("observation") or {}
+        entry.displacement_m = block.get("displacement_m")
+        entry.displacement_deg = block.get("displacement_deg")
+    summary = scene.summary()
+    caption = (f"silhouette IoU {_fmt_or_dash(summary['silhouette_iou'])}  |  free-space "
+               f"violation {_fmt_or_dash(summary['free_space_violation'])} (red)  |  UCD "
+               f"{_fmt_or_dash(summary['ucd_mm'], 1)} mm")
+    picture = observation_picture(view.rgb, scene.rendered.ids, scene.violation_map, view.masks,
+                                  {i: picture_colour(i) for i in ids}, caption)
+    return scene, picture, ""
+
+
+def _add_observation(objects: list[dict], export_objects: list,
+                     observed: Optional[SceneObservation]) -> dict:
+    """Add the observation metrics to each object's entry; return the scene-level ones."""
+    flags = [bool(((o.model_extra or {}).get("observation") or {}).get("flagged"))
+             for o in export_objects]
+    for k, (entry, flagged) in enumerate(zip(objects, flags)):
+        per = observed.objects[k] if observed is not None else None
+        entry.update({key: None if per is None else getattr(per, attr) for key, attr in (
+            ("silhouette_iou", "iou"), ("ucd_mm", "ucd_mm"),
+            ("free_space_violation", "free_space_violation"), ("free_space_px", "free_space_px"),
+            ("mask_px", "mask_px"), ("displacement_m", "displacement_m"),
+            ("displacement_deg", "displacement_deg"))})
+        entry["flagged"] = flagged
+    scene = observed.summary() if observed is not None else {
+        k: None for k in ("silhouette_iou", "min_silhouette_iou", "free_space_violation",
+                          "ucd_mm", "max_displacement_m", "max_displacement_deg")}
+    scene["flagged_objects"] = sum(flags)
+    return scene
+
+
+def _fmt_or_dash(value: Optional[float], digits: int = 3) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
 
 
 # ---- pieces of run() -------------------------------------------------------------------
@@ -161,11 +225,18 @@ def _camera(paths: ScenePaths, loaded: LoadedScene, model: dict
     return K, world_from_camera, w, h
 
 
-def _frame(client: int, camera: tuple, width_px: int) -> np.ndarray:
+def _frame(client: int, camera: tuple, width_px: int, body_ids: dict[int, int]
+           ) -> tuple[Frame, np.ndarray]:
+    """The picture (with the object id at each pixel) and the scaled ``K`` it was taken with."""
     K, world_from_camera, w, h = camera
     scale = min(1.0, width_px / w)
-    return render_rgb(client, scaled_intrinsics(K, scale), world_from_camera,
-                      max(1, round(w * scale)), max(1, round(h * scale)))
+    K_scaled = scaled_intrinsics(K, scale)
+    rgb, bodies = render(client, K_scaled, world_from_camera,
+                         max(1, round(w * scale)), max(1, round(h * scale)))
+    object_ids = np.full(bodies.shape, -1, dtype=np.int64)
+    for obj_id, body in body_ids.items():
+        object_ids[bodies == body] = obj_id
+    return Frame(rgb, object_ids), K_scaled
 
 
 def _png_bytes(image: np.ndarray) -> bytes:
@@ -184,7 +255,9 @@ class _Simulated:
     loaded: LoadedScene
     pen: PenetrationMetrics
     traj: Trajectory
-    frames: Optional[tuple[np.ndarray, np.ndarray]]
+    frames: Optional[tuple[Frame, Frame]]
+    pybullet_traj: Optional[Trajectory] = None     # the rollout the frames show
+    picture_camera: Optional[tuple[np.ndarray, np.ndarray]] = None  # (K, world_from_camera)
 
 
 def _simulate(paths: ScenePaths, options: Options, progress: ProgressFn, model: dict
@@ -198,16 +271,19 @@ def _simulate(paths: ScenePaths, options: Options, progress: ProgressFn, model: 
         if options.render:
             camera = _camera(paths, loaded, model)
             colour_bodies(client, loaded.body_ids, loaded.support_body)
-            first = _frame(client, camera, options.render_width_px)
+            first, K_scaled = _frame(client, camera, options.render_width_px, loaded.body_ids)
         progress("rollout", 0.1)
         traj = rollout(client, loaded, options.duration_s, options.rate_hz, options.record_hz,
                        progress=lambda m, f: progress(m, 0.1 + 0.3 * f))
         frames = None
         if options.render:
-            frames = (first, _frame(client, camera, options.render_width_px))
+            frames = (first, _frame(client, camera, options.render_width_px, loaded.body_ids)[0])
     finally:
         pb.disconnect(physicsClientId=client)
-    return _Simulated(loaded, pen, traj, frames)
+    sim = _Simulated(loaded, pen, traj, frames, pybullet_traj=traj)
+    if options.render:
+        sim.picture_camera = (K_scaled, camera[1])
+    return sim
 
 
 def _caption(sim: _Simulated, per_stab: list) -> str:
@@ -253,6 +329,10 @@ def run(ctx: StageContext) -> dict:
     progress("rendering metrics", 0.96)
     rendering, view = _rendering(paths, export_objects, ctx.manifest.model)
     scene.update({k: rendering[k] for k in ("psnr", "ssim", "lpips")})
+    progress("observation metrics", 0.98)
+    observed, observation_image, observation_reason = _observation(paths, export_objects,
+                                                                   ctx.manifest.model)
+    scene.update(_add_observation(objects, export_objects, observed))
     scene = {key: _finite_or_none(scene[key]) for key in SCENE_KEYS}
 
     export_ids = {o.id for o in export_objects}
@@ -270,6 +350,7 @@ def run(ctx: StageContext) -> dict:
             "pybullet_mesh_margin_m": PYBULLET_MESH_MARGIN_M,
         },
         "rendering": rendering,
+        "observation": {"measured": observed is not None, "reason": observation_reason or None},
         "engine": options.engine,
         "rollout": {"duration_s": sim.traj.duration_s, "samples": int(len(sim.traj.times_s))},
         "gt": {"present": gt is not None, "matched_ids": sorted(export_ids & gt_ids),
@@ -277,11 +358,16 @@ def run(ctx: StageContext) -> dict:
         "options": options.model_dump(mode="json"),
     })
     if sim.frames is not None:
-        picture = side_by_side(list(sim.frames), ["t = 0 s", f"t = {sim.traj.duration_s:.1f} s"],
-                               _caption(sim, per_stab))
+        motions = object_motions(sim.pybullet_traj, {o.id: o.label for o in export_objects})
+        picture = rollout_picture(
+            sim.frames[0], sim.frames[1], motions, *sim.picture_camera,
+            sim.pybullet_traj.duration_s, _caption(sim, per_stab),
+            unstable_ids=[s.id for s in per_stab if not s.stable])
         atomic_write_bytes(ctx.out_dir / "rollout.png", _png_bytes(picture))
     if view is not None:
         side_by_side_png(view[0], view[1], ctx.out_dir / "render.png", object_mask=view[2])
+    if observation_image is not None and options.render:
+        atomic_write_bytes(ctx.out_dir / "observation.png", _png_bytes(observation_image))
     progress("done", 1.0)
     return scene
 

@@ -17,10 +17,14 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from r2s.scene_model import corrected_state
+from r2s.scene_model import corrected_input, corrected_state
 from r2s.errors import StageError
+from r2s.io.input_scene import load_input
+from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import ScenePaths
 from r2s.io.state import read_state
+from r2s.metrics.observation_check import FlagTolerances, check_observation
+from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.io.manifest import Manifest
 from r2s.io.latest_state import latest_state_stage
@@ -33,6 +37,21 @@ class Options(StageOptions, BodyParams):
     source: Literal["auto", "init", "geomopt", "physopt", "texture", "gt"] = Field(
         "auto", description="Which result to export: the latest stage that ran, a named "
                             "stage, or gt (the ground truth, for judging the judge).")
+    observation: bool = Field(True, description="Measure each object against the input view "
+                                                "and write its 'observation' block (IoU, UCD, "
+                                                "displacement, flag) into scene.json.")
+    flag_displacement_m: float = Field(0.02, gt=0, description="Flag an object whose mesh "
+                                       "centre is farther than this from its init pose, m.")
+    flag_displacement_deg: float = Field(15.0, gt=0, description="... or that turned more "
+                                         "than this from its init pose, degrees.")
+    flag_min_iou: float = Field(0.5, ge=0, le=1, description="... or whose silhouette IoU is "
+                                "below this (masks of at least 1000 px).")
+    flag_max_free_space: float = Field(0.5, ge=0, description="... or that fills more space "
+                                       "the camera saw empty than this share of its mask.")
+
+    def tolerances(self) -> FlagTolerances:
+        return FlagTolerances(self.flag_displacement_m, self.flag_displacement_deg,
+                              self.flag_min_iou, self.flag_max_free_space)
 
 
 def _resolve_source(paths: ScenePaths, options: Options, manifest: Manifest) -> str:
@@ -48,7 +67,11 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
         source = _resolve_source(paths, options, manifest)
     except StageError:
         return []
-    return [paths.gt] if source == "gt" else [paths.stage_dir(source)]
+    found = [paths.gt] if source == "gt" else [paths.stage_dir(source)]
+    if options.observation:
+        found += [paths.stage_dir("init"), paths.camera, paths.depth_png, paths.depth_npy,
+                  paths.masks]
+    return found
 
 
 def _bodies_from_state(paths: ScenePaths, stage: str, model: dict
@@ -72,6 +95,34 @@ def _scalar(v: object) -> bool:
     return isinstance(v, (int, float, str, bool)) or v is None
 
 
+def _observation(paths: ScenePaths, items: list[ObjectItem], opt: Options, model: dict
+                 ) -> tuple[dict[int, dict], list[str], dict]:
+    """Per-object ``observation`` blocks, warning lines and a scene summary (all empty for
+    a scene without input/, e.g. a ground truth exported by hand). Takes the flags an
+    earlier stage left in ``item.extra`` (:data:`OBSERVATION_FLAG_KEY`) out of them."""
+    if not paths.input.is_dir():
+        return {}, [], {}
+    view = corrected_input(load_input(paths.root), model)
+    init_poses = None
+    if (paths.stage_dir("init") / "state.json").is_file():
+        init = corrected_state(read_state(paths.stage_dir("init")), model)
+        init_poses = {o.id: o.pose for o in init.objects}
+    earlier = {item.id: str(item.extra[OBSERVATION_FLAG_KEY]) for item in items
+               if item.extra.get(OBSERVATION_FLAG_KEY)}
+    for item in items:
+        item.extra.pop(OBSERVATION_FLAG_KEY, None)
+    meshes = [load_mesh(item.mesh_path) for item in items]
+    check = check_observation(
+        [m.copy().apply_transform(np.asarray(item.pose)) for m, item in zip(meshes, items)],
+        [item.id for item in items], view.camera.K, view.camera.world_from_camera,
+        view.depth_m, view.masks, {item.id: np.asarray(item.pose) for item in items},
+        init_poses, {item.id: np.asarray(m.centroid) for m, item in zip(meshes, items)},
+        opt.tolerances(), earlier)
+    summary = {k: None if v is None else round(float(v), 4)
+               for k, v in check.scene.summary().items()}
+    return check.blocks, check.warnings, summary
+
+
 def run(ctx: StageContext) -> dict:
     paths, opt = ctx.paths, ctx.options
     source = _resolve_source(paths, opt, ctx.manifest)
@@ -79,11 +130,27 @@ def run(ctx: StageContext) -> dict:
         gravity, support, items = gt_items(paths)
     else:
         gravity, support, items = _bodies_from_state(paths, source, ctx.manifest.model)
+    warnings: list[str] = []
+    observed: dict = {}
+    if opt.observation:
+        ctx.progress("observation check", 0.0)
+        blocks, warnings, observed = _observation(paths, items, opt, ctx.manifest.model)
+        for item in items:
+            if item.id in blocks:
+                item.extra["observation"] = blocks[item.id]
     bodies = build_and_write(ctx.out_dir, gravity, support, items, opt, paths.convex_cache,
                              ctx.progress)
     ctx.progress("done", 1.0)
-    return {"source": source, "objects": len(bodies),
-            "collision_pieces": int(sum(len(b.collision_pieces) for b in bodies))}
+    summary = {"source": source, "objects": len(bodies),
+               "collision_pieces": int(sum(len(b.collision_pieces) for b in bodies))}
+    if opt.observation:
+        summary.update(flagged_objects=sum(bool(b.extra.get("observation", {}).get("flagged"))
+                                           for b in bodies),
+                       silhouette_iou=observed.get("silhouette_iou"),
+                       ucd_mm=observed.get("ucd_mm"),
+                       free_space_violation=observed.get("free_space_violation"),
+                       warnings=warnings)
+    return summary
 
 
-STAGE = StageSpec("export", Options, inputs, run, uses_model=frozenset({"state"}))
+STAGE = StageSpec("export", Options, inputs, run, uses_model=frozenset({"state", "input"}))

@@ -5,7 +5,8 @@ Reads ``init/`` (poses, meshes) and ``graph/contact_graph.json``; writes
 * ``geomopt/sdf/<id>.npy`` + ``<id>.json``: each object's SDF in its own frame
   (:mod:`r2s.io.sdf_io`); reused from the previous run when mesh and settings match;
 * ``geomopt/state.json`` + ``meshes/<id>.glb``: init's state with optimised poses;
-* ``geomopt/loss.json``: the loss terms per iteration and the contact state before/after;
+* ``geomopt/loss.json``: the loss terms per iteration, the contact state before/after and
+  the share of each object's samples in space the camera saw empty (``free_space``);
 * ``geomopt/loss.png``: a plot of the loss.
 """
 
@@ -19,12 +20,15 @@ from typing import Optional
 import numpy as np
 from pydantic import Field, field_validator
 
+from r2s.scene_model import corrected_input
 from r2s.errors import InputError, StageError
 from r2s.geometry.sdf import SdfGrid, compute_sdf
+from r2s.geomopt.free_space import ObservedView, observed_view
 from r2s.geomopt.optimise import GeomParams, optimise_poses
 from r2s.geomopt.plot import loss_plot
 from r2s.geomopt.problem import build_problem
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json
+from r2s.io.input_scene import load_input
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import GEOMOPT_LOSS_FILE, ScenePaths
 from r2s.io.sdf_io import load_sdf, read_sdf_meta, save_sdf
@@ -54,6 +58,9 @@ class Options(StageOptions):
     contact_rotates: bool = Field(False, description="let the contact term rotate objects and move them sideways (default: only along gravity)")
     support_vertical: bool = Field(True, description="penetration between a child and its supporter moves them along gravity only")
     seed: int = Field(0, description="seed of the surface samples")
+    lambda_free_space: float = Field(0.0, ge=0, description="weight of the free-space term: samples in space the camera saw empty are pulled towards their mask, in a pass after the optimisation (0: off, the default: docs/observation.md; 30 was tried)")
+    free_space_band_px: float = Field(2.0, ge=0, description="pixels around an object's mask where its samples never violate free space")
+    free_space_margin_m: float = Field(0.015, ge=0, description="a sample violates free space when the observed depth is at least this far behind it (m)")
 
     @field_validator("sdf_voxel_size_m", mode="before")
     @classmethod
@@ -70,11 +77,27 @@ class Options(StageOptions):
                           sigma_translation_m=self.sigma_translation_m,
                           sigma_rotation_m=self.sigma_rotation_m, top_k=self.top_k,
                           contact_rotates=self.contact_rotates,
-                          support_vertical=self.support_vertical)
+                          support_vertical=self.support_vertical,
+                          lambda_free_space=self.lambda_free_space,
+                          free_space_band_px=self.free_space_band_px,
+                          free_space_margin_m=self.free_space_margin_m)
 
 
 def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path]:
-    return [paths.stage_dir("init"), paths.stage_dir("graph")]
+    found = [paths.stage_dir("init"), paths.stage_dir("graph")]
+    if options.lambda_free_space > 0:
+        found += [paths.camera, paths.depth_png, paths.depth_npy, paths.masks]
+    return found
+
+
+def _view(paths: ScenePaths, ids: list[int], model: dict) -> Optional[ObservedView]:
+    """The input view (as the scene's model corrects it) for the free-space term; None for
+    a scene without input/ (a state built by hand)."""
+    if not paths.input.is_dir():
+        return None
+    scene = corrected_input(load_input(paths.root), model)
+    return observed_view(scene.camera.K, scene.camera.world_from_camera, scene.depth_m,
+                         scene.masks, ids)
 
 
 def _sdf_settings(resolution: int, voxel_size_m: Optional[float]) -> dict:
@@ -156,6 +179,8 @@ def run(ctx: StageContext) -> dict:
                             np.asarray(state.support.point), np.asarray(state.support.normal),
                             samples=opts.samples, seed=opts.seed,
                             all_supporters=opts.all_supporters, gravity=np.asarray(state.gravity))
+    if opts.lambda_free_space > 0:
+        problem.view = _view(paths, ids, ctx.manifest.model)
 
     def progress(message: str, fraction: float) -> None:
         ctx.progress(message, 0.5 + 0.5 * fraction)
@@ -178,6 +203,9 @@ def run(ctx: StageContext) -> dict:
         "best_iteration": result.best_iteration, "seconds": round(result.seconds, 3),
         "terms": result.history, "before": _mm(result.before), "after": _mm(result.after),
         "objects": per_object, "source_stage": source,
+        "free_space": None if result.free_space_before is None else {
+            "before": dict(zip(ids, result.free_space_before)),
+            "after": dict(zip(ids, result.free_space_after))},
         "support_edges": [[ids[c], None if p < 0 else ids[p]] for c, p in problem.support_edges],
         "penetration_pairs": [[ids[a], ids[b]] for a, b in problem.penetration_pairs],
     })
@@ -195,7 +223,10 @@ def run(ctx: StageContext) -> dict:
     }
     summary.update({f"before_{k}": v for k, v in before.items()})
     summary.update({f"after_{k}": v for k, v in after.items()})
+    if result.free_space_before is not None:
+        summary["before_free_space_share"] = round(float(np.mean(result.free_space_before)), 5)
+        summary["after_free_space_share"] = round(float(np.mean(result.free_space_after)), 5)
     return summary
 
 
-STAGE = StageSpec("geomopt", Options, inputs, run)
+STAGE = StageSpec("geomopt", Options, inputs, run, uses_model=frozenset({"input"}))

@@ -271,7 +271,8 @@ def run(ctx: StageContext) -> dict:
     rendered = render_instances(posed, cam.K, cam.world_from_camera, cam.width, cam.height)
     atomic_write_bytes(out / "init.png",
                        _png_bytes(fit_overlay(scene.rgb, rendered, scene.masks, scene.ids,
-                                              zoom_to_px=1000)))
+                                              zoom_to_px=1000,
+                                              labels={o.id: o.label for o in scene.objects})))
     write_state(out, SceneState(
         stage="init", gravity=list(DEFAULT_GRAVITY),
         support=SupportPlane(point=[float(v) for v in plane.point],

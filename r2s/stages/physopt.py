@@ -33,6 +33,7 @@ from r2s.io.state import SceneState, read_state, write_state
 from r2s.physopt.hierarchy import (descendants, lowest_points_m, order_root_to_leaves,
                                    parents_from_graph)
 from r2s.physopt.object_opt import optimise_objects
+from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, displacement_flags
 from r2s.physopt.params import initial_params, keep_previous
 from r2s.physopt.repair import depenetrate_scene, verify_and_repair, world_factory
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
@@ -55,6 +56,11 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
                                                    "result and stay fixed.")
     use_diffsim: bool = Field(True, description="Optimise each object through the torch "
                                                 "simulator before the PyBullet check.")
+    observation_tolerance_m: float = Field(
+        0.02, gt=0, description="An object that ends farther than this from its init pose "
+                                "(where it was seen) is flagged, not silently moved, m.")
+    observation_tolerance_deg: float = Field(
+        15.0, gt=0, description="... or turned more than this from its init pose, degrees.")
     convex_threshold: float = Field(DEFAULT_CONVEX.threshold, gt=0,
                                     description="CoACD threshold (same as export).")
     max_convex_pieces: int = Field(DEFAULT_CONVEX.max_pieces, ge=1,
@@ -71,7 +77,7 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
         src = _source(paths, options, manifest)
     except Exception:
         return []
-    return [paths.stage_dir(src), paths.contact_graph]
+    return [paths.stage_dir(src), paths.contact_graph, paths.stage_dir("init")]
 
 
 def run(ctx: StageContext) -> dict:
@@ -109,14 +115,33 @@ def run(ctx: StageContext) -> dict:
         params = optimise_objects(params, meshes, state, free, opt, log, ctx.progress)
     params, final = verify_and_repair(make_world, params, order, [o.id for o in state.objects],
                                       opt, log, ctx.progress)
-    _write(ctx, paths.stage_dir(src), state, params, final, log)
+    flags = _observation_flags(paths, state, params, meshes, opt, ctx.manifest.model)
+    log["observation_flags"] = {str(i): reason for i, reason in flags.items()}
+    _write(ctx, paths.stage_dir(src), state, params, final, log, flags)
     ctx.progress("done", 1.0)
     return {"source": src, "objects": len(state.objects),
-            "still_moving": len(opt.moving(final)), "rounds": len(log["rounds"]) - 1}
+            "still_moving": len(opt.moving(final)), "rounds": len(log["rounds"]) - 1,
+            "flagged_objects": len(flags),
+            "warnings": [f"object {i}: {reason}" for i, reason in sorted(flags.items())]}
+
+
+def _observation_flags(paths: ScenePaths, state: SceneState, params: dict, meshes: dict,
+                       opt: Options, model: dict) -> dict[int, str]:
+    """Objects the rounds left farther from their init pose than the tolerance (id -> why);
+    the init pose is where the object was seen (the source state's without init/)."""
+    seen = state
+    if (paths.stage_dir("init") / "state.json").is_file():
+        seen = corrected_state(read_state(paths.stage_dir("init")), model)
+    flags, _ = displacement_flags(
+        {o.id: o.pose for o in seen.objects},
+        {i: p.world_from_object for i, p in params.items()},
+        {i: m.centroid for i, m in meshes.items()},
+        opt.observation_tolerance_m, opt.observation_tolerance_deg)
+    return flags
 
 
 def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, final: dict,
-           log: dict) -> None:
+           log: dict, flags: dict[int, str]) -> None:
     """physopt/: the state with the tuned parameters, the meshes, log.json."""
     (ctx.out_dir / "meshes").mkdir()
     objects = []
@@ -128,6 +153,8 @@ def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, fi
                     mass_kg=p.mass_kg, com_in_object=[float(x) for x in p.com_in_object],
                     friction=p.friction, physopt_drift_m=final[o.id][0],
                     physopt_drift_deg=final[o.id][1])
+        if o.id in flags:
+            data[OBSERVATION_FLAG_KEY] = flags[o.id]
         objects.append(data)
     support = state.support.model_copy(update={"friction": ctx.options.support_friction})
     write_state(ctx.out_dir, SceneState(stage="physopt", gravity=state.gravity, support=support,

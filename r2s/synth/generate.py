@@ -34,7 +34,8 @@ from r2s.io.atomic import atomic_write_json, commit_dir, recover_dir, scratch_di
 from r2s.io.input_scene import MIN_MASK_PIXELS
 from r2s.io.mesh_io import save_mesh
 from r2s.io.paths import ScenePaths
-from r2s.synth import appearance, camera, catalog, depth_noise, physics, placement, priors
+from r2s.synth import appearance, camera, catalog, depth_noise, physics, placement, priors, \
+    realistic
 from r2s.synth.collision import default_cache_dir, prime_scene_cache
 from r2s.synth.effects import Effects, distorted_frame, lens_coefficients, parse_effects
 from r2s.synth.files import depth_png, write_png, write_textured_obj
@@ -50,7 +51,8 @@ GENERATOR = "r2s synth v1"
 TABLE_SIZE_M = 3.0
 
 # Independent random streams, so that e.g. the noise level does not change the objects.
-_STREAMS = ("select", "body", "place", "effect", "camera", "noise", "prior", "texture", "order")
+_STREAMS = ("select", "body", "place", "effect", "camera", "noise", "prior", "texture", "order",
+            "masks")  # new streams go at the end: the earlier ones keep their numbers
 
 
 def _streams(seed: int) -> dict[str, np.random.Generator]:
@@ -86,7 +88,12 @@ def _world_points(placed: Placed, per_body: int = 400) -> np.ndarray:
 
 def _camera(placed: Placed, options: SynthOptions, rng: np.random.Generator
             ) -> tuple[np.ndarray, np.ndarray, dict]:
-    K = camera.intrinsics(options.width, options.height, options.vfov_deg)
+    vfov_deg, record = options.vfov_deg, {}
+    if options.camera_model == "realsense":
+        hfov_deg = float(rng.uniform(*options.hfov_deg))
+        vfov_deg = realistic.vertical_fov_deg(hfov_deg, options.width, options.height)
+        record = {"hfov_deg": hfov_deg, "vfov_deg": vfov_deg}
+    K = camera.intrinsics(options.width, options.height, vfov_deg)
     points = _world_points(placed)
     target = 0.5 * (points.min(axis=0) + points.max(axis=0))
     target[:2] += rng.normal(0.0, 0.015, size=2)
@@ -97,7 +104,7 @@ def _camera(placed: Placed, options: SynthOptions, rng: np.random.Generator
     distance = float(np.clip(needed * rng.uniform(1.0, 1.3), *options.distance_m))
     pose = camera.orbit_pose(target, elevation, azimuth, distance)
     return K, pose, {"elevation_deg": elevation, "azimuth_deg": azimuth,
-                     "distance_m": distance, "target": target}
+                     "distance_m": distance, "target": target, **record}
 
 
 def _lighting(rng: np.random.Generator) -> Lighting:
@@ -219,7 +226,14 @@ def synthesize(out_dir: Path, options: SynthOptions,
                        options.width, options.height, _lighting(rngs["camera"]))
         n = len(placed.bodies)
         frame = distorted_frame(frame, K, effects)
-        obs = _observe(frame, K, options, effects, rngs["noise"], n)
+        realism_record: dict = {}
+        if options.depth_model == "default" and options.mask_model == "exact":
+            obs = _observe(frame, K, options, effects, rngs["noise"], n)
+        else:
+            real = realistic.observe(frame, K, options, effects, rngs["noise"], rngs["masks"], n)
+            obs = _Observation(rgb=real.rgb, depth_m=real.depth_m, masks=real.masks,
+                               visible_px=real.visible_px, in_input=real.in_input)
+            realism_record = real.record
         if not obs.in_input.any():
             raise R2SError("no object is visible from the sampled camera (try another seed)")
 
@@ -261,12 +275,15 @@ def synthesize(out_dir: Path, options: SynthOptions,
         write_png(paths.rgb, obs.rgb)
         write_png(paths.depth_png, depth_png(obs.depth_m, DEPTH_UNIT_M))
         write_png(paths.masks, obs.masks)
+        if realism_record:
+            realistic.write_gt_images(paths.gt, real)
         atomic_write_json(paths.camera, {
             "width": options.width, "height": options.height, "K": _as_list(K),
             "world_from_camera": _as_list(written_pose), "depth_unit_m": DEPTH_UNIT_M})
 
         visible = [k for k in range(n) if obs.in_input[k]]
-        n_priors = int(round(options.prior_fraction * len(visible)))
+        n_priors = int(round(options.prior_fraction * len(visible))) \
+            if options.prior_model != "none" else 0
         with_prior = set(int(k) for k in rngs["prior"].permutation(visible)[:n_priors]) \
             if visible else set()
         input_objects, gt_objects = [], []
@@ -284,10 +301,29 @@ def synthesize(out_dir: Path, options: SynthOptions,
             }
             if obs.in_input[k]:
                 entry = {"id": obj_id, "label": body.name}
-                if k in with_prior:
+                if k in with_prior and options.prior_model == "single_image":
+                    prior_mesh, si_error = priors.make_single_image_prior(body.mesh,
+                                                                          rngs["prior"])
+                    world_from_prior, angle, shift = pose, 0.0, 0.0
+                    if options.prior_pose == "perturbed":
+                        world_from_prior, angle, shift = priors.perturb_pose(
+                            pose, prior_mesh.centroid, rngs["prior"])
+                    save_mesh(prior_mesh, paths.input / "priors" / f"{obj_id}.glb")
+                    entry["prior_mesh"] = f"priors/{obj_id}.glb"
+                    entry["world_from_prior"] = _as_list(world_from_prior)
+                    gt_entry["prior_error"] = {
+                        "model": "single_image", "scale": list(si_error.scale),
+                        "rotation_deg": angle, "translation_m": shift,
+                        "deformation": si_error.deformation, "chamfer_mm": si_error.chamfer_mm,
+                        "target_chamfer_mm": si_error.target_chamfer_mm,
+                        "smoothing_iterations": si_error.smoothing_iterations,
+                        "faces": si_error.faces}
+                elif k in with_prior:
                     prior_mesh, error = priors.make_prior_mesh(body.mesh, rngs["prior"])
                     world_from_prior, angle, shift = priors.perturb_pose(
                         pose, prior_mesh.centroid, rngs["prior"])
+                    if options.prior_pose == "exact":
+                        world_from_prior, angle, shift = pose, 0.0, 0.0
                     save_mesh(prior_mesh, paths.input / "priors" / f"{obj_id}.glb")
                     entry["prior_mesh"] = f"priors/{obj_id}.glb"
                     entry["world_from_prior"] = _as_list(world_from_prior)
@@ -308,7 +344,8 @@ def synthesize(out_dir: Path, options: SynthOptions,
                        **camera_record},
             "contacts": {"pairs": [[a + 1, b + 1] for a, b in contacts["pairs"]],
                          "stacked_ids": [k + 1 for k in contacts["stacked"]]},
-            "synth": {"generator": GENERATOR, "options": options.model_dump(),
+            **({"realism": realism_record} if realism_record else {}),
+            "synth": {"generator": GENERATOR, "options": options.record(),
                       "verify": {"duration_s": options.verify_duration_s,
                                  "translation_m": options.verify_translation_m,
                                  "rotation_deg": options.verify_rotation_deg}},

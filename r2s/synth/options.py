@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Optional
+from typing import Any, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, \
     model_validator
@@ -10,6 +10,15 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from r2s.errors import R2SError
 from r2s.synth import catalog
 from r2s.synth.effects import parse_effects
+
+
+REALSENSE_PRESET: dict[str, str] = {"camera_model": "realsense", "mask_model": "segmenter",
+                                    "depth_model": "realsense", "prior_model": "single_image"}
+"""What ``realism=realsense`` sets."""
+REALSENSE_ELEVATION_DEG = (27.0, 50.0)
+"""Elevation of ``camera_model=realsense``: 40-63 degrees from looking straight down."""
+REALISM_FIELDS = ("realism", "camera_model", "hfov_deg", "mask_model", "depth_model",
+                  "prior_model", "prior_pose")
 
 
 class SynthOptions(BaseModel):
@@ -49,6 +58,56 @@ class SynthOptions(BaseModel):
     push: bool = Field(False, description="Also push one object on the ground truth and "
                                           "write what the camera saw after it "
                                           "(input/interaction/, gt/push.json).")
+    # ---- realism (docs/realistic.md); every default reproduces the scenes made before ----
+    realism: Literal["none", "realsense"] = Field(
+        "none", description="Preset: realsense = camera_model=realsense, mask_model=segmenter, "
+                            "depth_model=realsense, prior_model=single_image (each may still "
+                            "be set on its own).")
+    camera_model: Literal["tabletop", "realsense"] = Field(
+        "tabletop", description="tabletop: vfov_deg and elevation_deg as given; realsense: "
+                                "horizontal FOV drawn from hfov_deg, elevation 27-50 deg "
+                                "(40-63 deg from looking straight down) unless elevation_deg "
+                                "is set.")
+    hfov_deg: tuple[float, float] = Field((58.0, 70.0), description="Horizontal field of view "
+                                          "range of camera_model=realsense, degrees.")
+    mask_model: Literal["exact", "segmenter"] = Field(
+        "exact", description="segmenter: masks bleed, get holes, an object is split into two "
+                             "ids, a sliver behind an occluder gets its own id (gt/realism/).")
+    depth_model: Literal["default", "realsense"] = Field(
+        "default", description="realsense: sigma_z = a z^2, disparity quantisation, stereo "
+                               "shadows, holes at edges and on dark, specular and thin "
+                               "surfaces, flying pixels (scaled by noise).")
+    prior_model: Literal["default", "single_image", "none"] = Field(
+        "default", description="default: mild prior errors; single_image: proportions off by "
+                               "up to 15 % per axis, smoothed, 10-20 mm Chamfer; none: no "
+                               "priors.")
+    prior_pose: Literal["perturbed", "exact"] = Field(
+        "perturbed", description="world_from_prior: the true pose turned by 10-20 deg and "
+                                 "shifted by 1-4 cm (perturbed) or the true pose (exact).")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _preset(cls, data: Any) -> Any:
+        """Expand ``realism`` and ``camera_model`` into the options they imply (explicit
+        options win)."""
+        if not isinstance(data, dict):
+            return data
+        out = dict(data)
+        if out.get("realism") == "realsense":
+            for key, value in REALSENSE_PRESET.items():
+                out.setdefault(key, value)
+        if out.get("camera_model") == "realsense":
+            out.setdefault("elevation_deg", REALSENSE_ELEVATION_DEG)
+        return out
+
+    def record(self) -> dict:
+        """The options as gt/scene.json records them: the realism options only where they
+        differ from their defaults (so scenes made without them keep their bytes)."""
+        out = self.model_dump()
+        for key in REALISM_FIELDS:
+            if out[key] == type(self).model_fields[key].get_default():
+                del out[key]
+        return out
 
     def __init__(self, **data: object) -> None:
         try:
@@ -96,6 +155,8 @@ class SynthOptions(BaseModel):
             (0.2 <= self.distance_m[0] <= self.distance_m[1] <= 5,
              "distance_m must be an increasing range within 0.2..5"),
             (0 <= self.prior_fraction <= 1, "prior_fraction must be within 0..1"),
+            (20 <= self.hfov_deg[0] <= self.hfov_deg[1] <= 120,
+             "hfov_deg must be an increasing range within 20..120"),
             (0 < self.friction_range[0] <= self.friction_range[1],
              "friction_range must be an increasing positive range"),
             (self.support_friction > 0, "support_friction must be positive"),
@@ -110,3 +171,37 @@ class SynthOptions(BaseModel):
             if not ok:
                 raise ValueError(message)
         return self
+
+
+def options_from_command_line(explicit: dict[str, object], sets: dict[str, str]
+                              ) -> SynthOptions:
+    """SynthOptions from the synth command's own options (``explicit``: those given a value
+    other than their default) and its ``--set KEY=VALUE`` pairs (any field but
+    ``effects``; a range as ``LO,HI``). A key given both ways is an error."""
+    data: dict[str, object] = dict(explicit)
+    fields = SynthOptions.model_fields
+    for key, value in sets.items():
+        if key not in fields or key == "effects":
+            known = ", ".join(k for k in fields if k != "effects")
+            raise R2SError(f"synth --set {key}: unknown option (known: {known})")
+        if key in explicit:
+            raise R2SError(f"synth option {key} given both as --{key.replace('_', '-')} "
+                           "and --set")
+        if str(fields[key].annotation).startswith("tuple"):
+            parts = [p for p in str(value).split(",") if p.strip()]
+            if len(parts) != 2:
+                raise R2SError(f"synth --set {key}={value}: expected a range LO,HI")
+            data[key] = tuple(p.strip() for p in parts)
+        else:
+            data[key] = value
+    return SynthOptions(**data)
+
+
+def set_help() -> str:
+    """The --help epilog of ``r2s synth``: every option ``--set`` takes."""
+    lines = ["Options for --set key=value (ranges as LO,HI); e.g. --set realism=realsense "
+             "--set prior_model=none:\n\n"]
+    for name, fld in SynthOptions.model_fields.items():
+        if name != "effects":
+            lines.append(f"{name} (default {fld.default!r}): {fld.description or ''}\n\n")
+    return "".join(lines)

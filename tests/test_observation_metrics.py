@@ -1,0 +1,165 @@
+"""Observation metrics (r2s.metrics.observation) on hand-made scenes with known answers.
+
+The camera looks straight down from 1 m above the origin (f = 500 px). A thin slab
+(1 mm) whose top face spans whole pixels renders exactly the pixels whose centres lie over
+it, so its silhouette, shifted silhouettes and free-space violations are known exactly.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from r2s.metrics.observation import (free_space_map, observation_picture, observe_scene,
+                                     pose_displacement, render_objects, silhouette_iou,
+                                     unilateral_chamfer_m)
+from r2s.render.gbuffer import rasterize
+
+W, H, F = 160, 120, 500.0
+K = np.array([[F, 0.0, 79.5], [0.0, F, 59.5], [0.0, 0.0, 1.0]])
+CAMERA = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 1.0],
+                   [0.0, 0.0, 0.0, 1.0]])
+"""world_from_camera: at (0, 0, 1), looking down; image u along +x, v along -y."""
+
+
+def slab(u0: int, u1: int, v0: int, v1: int, top_z: float, shift_px: float = 0.0,
+         thickness_m: float = 0.001) -> trimesh.Trimesh:
+    """A slab whose top face (at world height ``top_z``) covers pixels u0..u1 x v0..v1
+    (inclusive) exactly, moved ``shift_px`` pixels along +u."""
+    depth = 1.0 - top_z
+    x0 = (u0 - 0.5 - K[0, 2] + shift_px) * depth / F
+    x1 = (u1 + 0.5 - K[0, 2] + shift_px) * depth / F
+    y1 = -(v0 - 0.5 - K[1, 2]) * depth / F
+    y0 = -(v1 + 0.5 - K[1, 2]) * depth / F
+    box = trimesh.creation.box(extents=[x1 - x0, y1 - y0, thickness_m])
+    box.apply_translation([(x0 + x1) / 2, (y0 + y1) / 2, top_z - thickness_m / 2])
+    return box
+
+
+def mask_of(u0: int, u1: int, v0: int, v1: int, obj_id: int = 1) -> np.ndarray:
+    m = np.zeros((H, W), dtype=np.int32)
+    m[v0:v1 + 1, u0:u1 + 1] = obj_id
+    return m
+
+
+def test_render_matches_mask_exactly():
+    mesh = slab(40, 79, 30, 69, top_z=0.2)
+    r = render_objects([mesh], [1], K, CAMERA, W, H)
+    per, pooled = silhouette_iou(r.ids, mask_of(40, 79, 30, 69), [1])
+    assert per[1] == pytest.approx(1.0, abs=1e-9)
+    assert pooled == pytest.approx(1.0, abs=1e-9)
+    assert np.nanmax(np.abs(r.depth_m[r.ids == 1] - 0.8)) < 1e-5
+
+
+@pytest.mark.parametrize("k", [1, 3, 10])
+def test_shifted_render_has_known_iou(k):
+    width = 40  # pixels 40..79
+    mesh = slab(40, 79, 30, 69, top_z=0.2, shift_px=k)
+    r = render_objects([mesh], [1], K, CAMERA, W, H)
+    per, _ = silhouette_iou(r.ids, mask_of(40, 79, 30, 69), [1])
+    assert per[1] == pytest.approx((width - k) / (width + k), abs=1e-9)
+
+
+def test_pooled_iou_sums_over_objects_and_occlusion_counts():
+    # object 2 lies below object 1 and is half hidden by it in the render, as in the mask
+    top = slab(40, 79, 30, 69, top_z=0.2)
+    below = slab(60, 99, 30, 69, top_z=0.1)
+    masks = mask_of(60, 99, 30, 69, 2)
+    masks[30:70, 40:80] = 1
+    r = render_objects([top, below], [1, 2], K, CAMERA, W, H)
+    per, pooled = silhouette_iou(r.ids, masks, [1, 2])
+    assert per[1] == pytest.approx(1.0) and per[2] == pytest.approx(1.0)
+    # now the mask says object 2 is fully visible (40 x 40) but the render shows 20 x 40
+    masks2 = mask_of(60, 99, 30, 69, 2)
+    masks2[30:70, 40:60] = 1
+    per, pooled = silhouette_iou(r.ids, masks2, [1, 2])
+    assert per[1] == pytest.approx(20 / 40)            # rendered 40 wide, mask 20 wide
+    assert per[2] == pytest.approx(20 / 40)            # rendered 20 wide, mask 40 wide
+    assert pooled == pytest.approx((800 + 800) / (1600 + 1600))
+
+
+def test_free_space_fraction_is_analytic():
+    # rendered 40 x 40 px at depth 0.8 over a table seen at depth 1.0; the mask is the
+    # left 20 columns. Columns more than 2 px right of the mask (u >= 62) violate.
+    mesh = slab(40, 79, 30, 69, top_z=0.2)
+    masks = mask_of(40, 59, 30, 69)
+    depth = np.full((H, W), 1.0)
+    depth[masks == 1] = 0.8
+    r = render_objects([mesh], [1], K, CAMERA, W, H)
+    fs = free_space_map(r, depth, masks, 1)
+    assert int(fs.sum()) == 18 * 40
+    expected = np.zeros((H, W), bool)
+    expected[30:70, 62:80] = True
+    assert np.array_equal(fs, expected)
+    assert fs.sum() / (masks == 1).sum() == pytest.approx(0.9)
+    # no reading in the top 10 rows, and 10 mm behind only (< 15 mm margin) in the next 10
+    depth[30:40, 60:] = np.nan
+    depth[40:50, 60:] = 0.81
+    fs = free_space_map(r, depth, masks, 1)
+    assert int(fs.sum()) == 18 * 20
+    scene = observe_scene([mesh], [1], K, CAMERA, depth, masks)
+    assert scene.objects[0].free_space_violation == pytest.approx(18 * 20 / 800)
+    assert scene.violation_map.sum() == 18 * 20
+
+
+def test_object_behind_observed_surface_is_not_a_violation():
+    # the render lies behind what the camera saw (an occluder): says nothing
+    mesh = slab(40, 79, 30, 69, top_z=0.2)
+    masks = mask_of(40, 59, 30, 69)
+    depth = np.full((H, W), 0.5)
+    r = render_objects([mesh], [1], K, CAMERA, W, H)
+    assert not free_space_map(r, depth, masks, 1).any()
+
+
+def test_ucd_of_points_on_and_off_the_surface():
+    box = trimesh.creation.box(extents=[0.1, 0.06, 0.04])
+    box.apply_translation([0.02, -0.01, 0.3])
+    pts, faces = trimesh.sample.sample_surface(box, 5000, seed=3)
+    assert unilateral_chamfer_m(pts, box) < 1e-6
+    for d in (0.002, 0.01):
+        off = pts + d * box.face_normals[faces]
+        assert unilateral_chamfer_m(off, box) == pytest.approx(d, abs=2e-6)
+    assert unilateral_chamfer_m(np.zeros((0, 3)), box) is None
+
+
+def test_ucd_through_backprojection_of_a_rendered_depth():
+    box = trimesh.creation.box(extents=[0.08, 0.05, 0.05])
+    box.apply_translation([0.01, 0.0, 0.025])
+    g = rasterize([box], K, CAMERA, W, H)
+    depth = g.depth_m.astype(np.float64)
+    masks = np.where(g.object_index == 0, 3, 0).astype(np.int32)
+    scene = observe_scene([box], [3], K, CAMERA, depth, masks)
+    o = scene.objects[0]
+    assert o.iou == pytest.approx(1.0)
+    assert o.ucd_mm < 0.01
+    assert o.free_space_violation == 0.0
+    moved = box.copy().apply_translation([0.0, 0.0, -0.004])  # 4 mm lower: seen 4 mm off
+    o = observe_scene([moved], [3], K, CAMERA, depth, masks).objects[0]
+    assert 3.0 < o.ucd_mm <= 4.0 + 1e-3
+
+
+def test_pose_displacement():
+    a = np.eye(4)
+    b = np.eye(4)
+    b[:3, 3] = [0.03, 0.04, 0.0]
+    assert pose_displacement(a, b, np.zeros(3)) == pytest.approx((0.05, 0.0), abs=1e-12)
+    c = np.eye(4)
+    ang = np.radians(30.0)
+    c[:2, :2] = [[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]]
+    m, deg = pose_displacement(a, c, np.array([0.1, 0.0, 0.0]))
+    assert deg == pytest.approx(30.0, abs=1e-9)
+    assert m == pytest.approx(2 * 0.1 * np.sin(ang / 2), abs=1e-12)
+
+
+def test_picture_paints_violations_red_and_keeps_size():
+    mesh = slab(40, 79, 30, 69, top_z=0.2)
+    masks = mask_of(40, 59, 30, 69)
+    depth = np.full((H, W), 1.0)
+    scene = observe_scene([mesh], [1], K, CAMERA, depth, masks)
+    rgb = np.full((H, W, 3), 100, np.uint8)
+    pic = observation_picture(rgb, scene.rendered.ids, scene.violation_map, masks,
+                              {1: (0.0, 0.0, 1.0)}, "caption")
+    assert pic.shape == (H + 18, W, 3)
+    assert tuple(pic[50, 75]) == (255, 0, 0)
+    assert tuple(pic[5, 5]) == (60, 60, 60)  # untouched background is dimmed to 60 %
