@@ -199,6 +199,8 @@ class PhysicsData:
     motion: dict
     simulate: Optional[Simulator] = None
     horizon_s: float = 1.0
+    stage: Optional[str] = None
+    """The stage whose state was rolled out (None: not from a scene)."""
     sigma_translation_m: float = 0.015
     sigma_rotation_rad: float = float(np.radians(5.0))
     cap: float = 4.0

@@ -204,6 +204,7 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
         physics = physics_residual(spec, np.asarray(state.gravity, dtype=np.float64), ok,
                                    settings.horizon_s, settings.sigma_translation_m,
                                    float(np.radians(settings.sigma_rotation_deg)), settings.cap)
+        physics = replace(physics, stage=stage)
         push_path = paths.interaction / PUSH_FILE
         if push_path.is_file():
             progress("simulating the observed push", 0.8)
