@@ -258,3 +258,17 @@ def test_lens_distortion_is_found_and_fitted_on_a_scene(tmp_path):
     gt = rep["gt_errors"]
     assert gt["after"]["state_support_normal_error_deg"] < \
         0.2 * gt["before"]["state_support_normal_error_deg"]
+
+
+def test_com_offset_is_not_fitted_on_a_rollout_of_init():
+    """A rocking object in init's raw registration says the fit is off, not the density."""
+    from r2s.diagnose.data import Motion, PhysicsData, PhysicsModel, PhysObject
+
+    objs = {1: PhysObject(id=1, com_world=np.zeros(3))}
+    turn = {1: Motion(np.zeros(3), np.array([0.0, 0.5, 0.0]))}
+    phys = PhysicsData(base=PhysicsModel(), objects=objs, motion=turn,
+                       simulate=lambda m: turn, stage="init")
+    fit = get_effect("com_offset").fit(Residuals(physics=phys))
+    assert not fit.identifiable and "init" in fit.note
+    assert get_effect("com_offset").fit(Residuals(physics=replace(phys, stage="geomopt"))).note \
+        != fit.note
