@@ -1,7 +1,8 @@
 # r2s: setup, demo, tests, benchmarks and dataset batches.
 #   make demo                       set up (first time) and run the pipeline on the sample scene
 #   make test                       set up (first time) and run the test suite
-#   make batch DATA=bench/ycb -j4   run every scene under DATA (resumable), then `make report`
+#   make batch DATA=bench/ycb JOBS=4  run every scene under DATA (any depth, resumable) with
+#                                   `r2s batch`; writes DATA/report.md and DATA/report.csv
 SHELL := /bin/bash
 VENV ?= .venv
 PY := $(VENV)/bin/python
@@ -34,19 +35,19 @@ bench: $(STAMP)
 	$(PY) scripts/bench_baseline.py
 
 # ---- dataset batches ------------------------------------------------------------------
-# Every directory under $(DATA) holding input/ is a scene; a scene whose metrics are newer
-# than its input is skipped (and `r2s run` itself skips stages that are up to date).
-SCENES := $(patsubst %/input,%,$(wildcard $(DATA)/*/input))
-METRICS := $(addsuffix /evaluate/metrics.json,$(SCENES))
+# `r2s batch` finds every folder under $(DATA) holding input/ (at any depth), runs the stale
+# stages of each (`r2s run` skips what is up to date), $(JOBS) scenes at a time with the
+# threads capped per job, and writes report.md and report.csv (per-scene rows + aggregate).
+# `make -j4 batch` also works: JOBS defaults to make's own -j.
+JOBS ?= $(or $(patsubst -j%,%,$(filter -j%,$(MAKEFLAGS))),1)
+SCENES = $(sort $(patsubst %/input,%,$(shell find $(DATA) -type d -name input 2>/dev/null)))
 
-batch: $(METRICS)
-	$(R2S) report $(SCENES) --out $(DATA)/report.md
-
-$(DATA)/%/evaluate/metrics.json: $(DATA)/%/input/camera.json | $(STAMP)
-	$(R2S) run $(DATA)/$* > $(DATA)/$*/run.log 2>&1 || (tail -3 $(DATA)/$*/run.log; exit 1)
+batch: $(STAMP)
+	$(R2S) batch $(DATA) --jobs $(JOBS)
 
 report: $(STAMP)
 	$(R2S) report $(SCENES) --out $(DATA)/report.md
 
 clean-batch:
-	rm -rf $(addsuffix /init,$(SCENES)) $(addsuffix /export,$(SCENES)) $(METRICS)
+	rm -rf $(addsuffix /init,$(SCENES)) $(addsuffix /export,$(SCENES)) \
+	  $(addsuffix /evaluate/metrics.json,$(SCENES))

@@ -1,4 +1,5 @@
-"""Aggregate ``evaluate/metrics.json`` of many scenes into one table (terminal + markdown).
+"""Aggregate ``evaluate/metrics.json`` of many scenes into one table (terminal + markdown),
+and ``r2s batch``'s report (one row per scene, then the aggregate; markdown and CSV).
 
 Stability is pooled over instances (stable instances / all instances, as in the paper's
 Table I); the other columns are means over scenes. Time per scene is the sum of the
@@ -90,3 +91,51 @@ def aggregate_metrics(scene_dirs: Sequence[Path], out: Optional[Path] = None,
     if out is not None:
         atomic_write_text(Path(out), markdown_header() + "\n" + markdown_row(label, agg) + "\n")
     return agg
+
+
+def _cells(agg: Aggregate) -> list[str]:
+    return [fmt.format(agg.values[key]) if np.isfinite(agg.values[key]) else "n/a"
+            for _, key, fmt in COLUMNS]
+
+
+def write_batch_report(root: Path, runs: Sequence[tuple[Path, bool, float]], out_dir: Path,
+                       label: str = "r2s") -> tuple[Path, Path]:
+    """``report.md`` and ``report.csv`` in ``out_dir``: one row per scene of ``runs``
+    (``(scene, ok, wall seconds)``; scenes named relative to ``root``), then the aggregate
+    of the scenes that have metrics (as ``r2s report``). Returns both paths."""
+    import csv
+    import io
+
+    heads = [h for h, _, _ in COLUMNS]
+    md_lines = ["| Scene | Status | Wall [s] | " + " | ".join(heads) + " |",
+                "|" + "---|" * (len(heads) + 3)]
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(["scene", "status", "wall_s"] + [key for _, key, _ in COLUMNS])
+    with_metrics: list[Path] = []
+    for scene, ok, seconds in runs:
+        name = str(Path(scene).relative_to(root)) if Path(scene) != Path(root) else "."
+        has = ScenePaths(Path(scene)).metrics.is_file()
+        status = "ok" if ok else "failed"
+        if has and ok:
+            with_metrics.append(Path(scene))
+            agg = aggregate([scene])
+            cells, raw = _cells(agg), [agg.values[k] for _, k, _ in COLUMNS]
+        else:
+            cells, raw = ["n/a"] * len(COLUMNS), [""] * len(COLUMNS)
+        md_lines.append(f"| {name} | {status} | {seconds:.1f} | " + " | ".join(cells) + " |")
+        writer.writerow([name, status, f"{seconds:.3f}"] + [
+            "" if v == "" or not np.isfinite(v) else f"{v:.6g}" for v in raw])
+    if with_metrics:
+        agg = aggregate(with_metrics)
+        total = sum(s for _, _, s in runs)
+        md_lines.append(f"| **{label}: {agg.scenes} scenes** | | {total:.1f} | "
+                        + " | ".join(_cells(agg)) + " |")
+        writer.writerow([f"{label} (all)", f"{agg.scenes} scenes", f"{total:.3f}"] + [
+            f"{agg.values[k]:.6g}" if np.isfinite(agg.values[k]) else ""
+            for _, k, _ in COLUMNS])
+    out_dir = Path(out_dir)
+    md, csv_path = out_dir / "report.md", out_dir / "report.csv"
+    atomic_write_text(md, "\n".join(md_lines) + "\n")
+    atomic_write_text(csv_path, buf.getvalue())
+    return md, csv_path

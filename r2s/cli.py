@@ -12,25 +12,66 @@ from typing import Callable, List, Optional
 
 import typer
 
+from r2s import __version__
 from r2s.console import console, print_error
 from r2s.errors import R2SError
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
+app = typer.Typer(no_args_is_help=True,
                   help="r2s: a physically consistent simulation twin of a cluttered tabletop "
                        "from one RGB-D image and instance masks.")
 
 SET_HELP = ("Stage option as key=value (repeatable), applied to the options the stage last ran "
             "with (else the defaults); see the list below.")
+JSON_HELP = ("Print the stage summary and the metrics as one JSON document on stdout "
+             "(tables and progress go to stderr).")
+WAIT_HELP = ("When another r2s process writes the scene: wait up to this many seconds for it "
+             "(default 0: stop at once with one line naming it).")
+
+
+def _version_callback(value: bool) -> None:
+    if value:
+        console.print(f"r2s {__version__}", highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(False, "--version", callback=_version_callback,
+                                 is_eager=True, help="Print the version and exit."),
+) -> None:
+    """r2s: a physically consistent simulation twin of a cluttered tabletop from one RGB-D
+    image and instance masks."""
 
 
 def _options_epilog(stage_name: str) -> str:
-    from r2s.runner.registry import get_stage  # imports the stage (and torch): --help only
+    from r2s.cli_help import options_epilog  # imports the stage (and torch): --help only
 
-    spec = get_stage(stage_name)
-    lines = ["Options for --set key=value:\n\n"]
-    for name, fld in spec.options_type.model_fields.items():
-        lines.append(f"{name} (default {fld.default!r}): {fld.description or ''}\n\n")
-    return "".join(lines)
+    return options_epilog(stage_name)
+
+
+def _run_and_report(scene_dir: Path, as_json: bool, call: Callable) -> None:
+    """Run ``call(progress_factory, on_warning)`` -> results, then print the tables and the
+    closing line, or (``--json``) only the JSON document on stdout."""
+    from r2s.cli_output import (emit_json, no_progress, print_results, print_where,
+                                results_document, stdout_reserved_for_json)
+    from r2s.console import print_warning, stage_progress
+
+    said: list[str] = []
+
+    def warn(message: str) -> None:
+        if message not in said:
+            said.append(message)
+            print_warning(message)
+
+    if as_json:
+        with stdout_reserved_for_json() as out:
+            results = call(no_progress, warn)
+            print_results(results, said)  # on stderr
+            emit_json(out, results_document(scene_dir, results))
+        return
+    results = call(stage_progress, warn)
+    print_results(results, said)
+    print_where(scene_dir)
 
 
 def _parse_sets(sets: Optional[List[str]]) -> dict:
@@ -43,14 +84,23 @@ def _parse_sets(sets: Optional[List[str]]) -> dict:
     return out
 
 
+def _run_one_stage(scene_dir: Path, stage_name: str, overrides: dict, as_json: bool,
+                   wait_s: float = 0.0) -> None:
+    from r2s.runner.pipeline import run_single_stage
+
+    _run_and_report(scene_dir, as_json, lambda progress_factory, on_warning: [run_single_stage(
+        scene_dir, stage_name, overrides, progress_factory=progress_factory,
+        on_warning=on_warning, wait_s=wait_s)])
+
+
 def _make_stage_command(stage_name: str, summary: str) -> Callable:
     def command(
         scene_dir: Path = typer.Argument(..., help="Scene directory (holds input/)."),
         set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
+        as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+        wait: float = typer.Option(0.0, "--wait", min=0, help=WAIT_HELP),
     ) -> None:
-        from r2s.runner.pipeline import run_single_stage
-
-        run_single_stage(scene_dir, stage_name, _parse_sets(set_))
+        _run_one_stage(scene_dir, stage_name, _parse_sets(set_), as_json, wait)
 
     command.__doc__ = summary
     command.__name__ = f"cmd_{stage_name}"
@@ -84,15 +134,15 @@ def cmd_physopt(
     only: Optional[int] = typer.Option(None, "--only", help="Rerun only this object id and "
                                                           "the objects it supports."),
     set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
+    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+    wait: float = typer.Option(0.0, "--wait", min=0, help=WAIT_HELP),
 ) -> None:
-    from r2s.runner.pipeline import run_single_stage
-
     overrides = _parse_sets(set_)
     # ``--only`` is one run's choice: without it, the whole scene (not a recorded --only)
     overrides.setdefault("only", "null" if only is None else str(only))
     if only is not None:
         overrides["only"] = str(only)
-    run_single_stage(scene_dir, "physopt", overrides)
+    _run_one_stage(scene_dir, "physopt", overrides, as_json, wait)
 
 
 @app.command(name="evaluate", help=_STAGE_HELP["evaluate"],
@@ -104,13 +154,13 @@ def cmd_evaluate(
         None, "--engine", help="Judge engine: pybullet (default) or mujoco (export/scene.xml); "
                                "the same as --set engine=..."),
     set_: Optional[List[str]] = typer.Option(None, "--set", help=SET_HELP),
+    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+    wait: float = typer.Option(0.0, "--wait", min=0, help=WAIT_HELP),
 ) -> None:
-    from r2s.runner.pipeline import run_single_stage
-
     overrides = _parse_sets(set_)
     if engine is not None:
         overrides["engine"] = engine
-    run_single_stage(scene_dir, "evaluate", overrides)
+    _run_one_stage(scene_dir, "evaluate", overrides, as_json, wait)
 
 
 @app.command()
@@ -121,12 +171,29 @@ def run(
     skip: Optional[List[str]] = typer.Option(None, help="Stage to leave out (repeatable)."),
     set_: Optional[List[str]] = typer.Option(None, "--set",
                                              help="stage.key=value option (repeatable)."),
+    as_json: bool = typer.Option(False, "--json", help=JSON_HELP),
+    wait: float = typer.Option(0.0, "--wait", min=0, help=WAIT_HELP),
 ) -> None:
     """Run every stage whose inputs or options changed, and skip the rest."""
-    from r2s.runner.pipeline import run_pipeline
+    overrides = _parse_sets(set_)
 
-    run_pipeline(scene_dir, force=force, until=until, skip=list(skip or []),
-                 overrides=_parse_sets(set_))
+    def call(progress_factory: Callable, on_warning: Callable) -> list:
+        if not force:  # a finished scene answers without importing any stage
+            from r2s.runner.noop import quick_run
+
+            quick = quick_run(scene_dir, until, list(skip or []), overrides, wait_s=wait,
+                              notify=on_warning)
+            if quick is not None:
+                for warning in quick[1]:
+                    on_warning(warning)
+                return quick[0]
+        from r2s.runner.pipeline import run_pipeline
+
+        return run_pipeline(scene_dir, force=force, until=until, skip=list(skip or []),
+                            overrides=overrides, progress_factory=progress_factory,
+                            on_warning=on_warning, wait_s=wait)
+
+    _run_and_report(scene_dir, as_json, call)
 
 
 def _synth_epilog() -> Optional[str]:
@@ -180,8 +247,10 @@ def predict(
         None, "--action", help="Push action JSON (see docs/interaction.md); default: the "
                                "observed push input/interaction/push.json."),
 ) -> None:
-    """Replay a pusher trajectory on export/ in PyBullet; writes predict/ (with the error
-    against the observed outcome when the push is input/interaction/'s)."""
+    """Replay a pusher trajectory on export/ in PyBullet; writes predict/.
+
+    With the observed push (input/interaction/), predict/ also holds the error against
+    the observed outcome."""
     from r2s.console import print_table
     from r2s.interaction.predict import predict as run_predict
 
@@ -235,6 +304,50 @@ def report(
 
 
 @app.command()
+def batch(
+    root: Path = typer.Argument(..., help="Folder searched at any depth for scenes (a scene is "
+                                          "a folder holding input/)."),
+    jobs: int = typer.Option(1, "--jobs", "-j", min=1, help="Scenes run at once."),
+    executor: str = typer.Option("local", "--executor",
+                                 help="local (processes on this machine) or ray (a local Ray "
+                                      "instance, or the cluster named by RAY_ADDRESS)."),
+    threads: Optional[int] = typer.Option(
+        None, "--threads", min=1, help="Torch/BLAS threads per job (default: CPU cores / "
+                                       "jobs)."),
+    set_: Optional[List[str]] = typer.Option(None, "--set",
+                                             help="stage.key=value option (repeatable)."),
+    skip: Optional[List[str]] = typer.Option(None, help="Stage to leave out (repeatable)."),
+    out: Optional[Path] = typer.Option(None, help="Report folder (default ROOT): report.md "
+                                                  "and report.csv."),
+    label: str = typer.Option("r2s", help="Row label of the aggregate."),
+) -> None:
+    """Run every scene under ROOT (any depth, resumable); write report.md and report.csv.
+
+    Each scene is an 'r2s run' (up-to-date stages are skipped); the reports have one row
+    per scene and the aggregate of 'r2s report'. See docs/batch.md for clusters."""
+    from r2s.runner.batch import BatchConfig, run_batch
+
+    config = BatchConfig(jobs=jobs, executor=executor, threads=threads,
+                         overrides=_parse_sets(set_), skip=tuple(skip or ()), label=label)
+    outcome = run_batch(root, config, out_dir=out, progress=_batch_line)
+    from r2s.console import print_table
+
+    rows = [[str(s.scene), "ok" if s.ok else f"failed: {s.error}", f"{s.seconds:.1f}"]
+            for s in outcome.scenes]
+    print_table(f"batch: {len(outcome.scenes)} scenes, {outcome.seconds:.1f} s",
+                ["scene", "status", "seconds"], rows)
+    console.print(f"report: {outcome.report_md} and {outcome.report_csv}", soft_wrap=True,
+                  highlight=False, markup=False)
+    if outcome.failed:
+        raise R2SError(f"{outcome.failed} of {len(outcome.scenes)} scenes failed; see the "
+                       f"run.log in each")
+
+
+def _batch_line(message: str) -> None:
+    console.print(message, soft_wrap=True, highlight=False, markup=False)
+
+
+@app.command()
 def view(
     scene_dir: Path = typer.Argument(..., help="Scene directory with export/ (r2s run first)."),
     port: int = typer.Option(8080, help="Port to serve on."),
@@ -250,13 +363,18 @@ def view(
     view_scene(scene_dir, host=host, port=port, screenshot=screenshot)
 
 
-def main() -> None:
-    """Console-script entry point: expected errors become one red line and an exit code."""
+def main(argv: Optional[List[str]] = None) -> None:
+    """Console-script entry point: expected errors and usage mistakes become one red line
+    and an exit code (usage: 2); a bug keeps its traceback."""
     import logging
 
     logging.getLogger("trimesh").setLevel(logging.ERROR)  # its sampling chatter is not news
+    from r2s.cli_help import tidy_help
+
     try:
-        app(standalone_mode=False)
+        command = typer.main.get_command(app)
+        tidy_help(command)
+        command.main(args=argv, prog_name="r2s", standalone_mode=False)
     except R2SError as exc:
         print_error(str(exc))
         sys.exit(exc.exit_code)
@@ -265,15 +383,16 @@ def main() -> None:
         sys.exit(130)
     except SystemExit:
         raise
-    except Exception as exc:  # click usage errors arrive here in non-standalone mode
-        import click
+    except Exception as exc:
+        from r2s.cli_help import usage_error
 
-        if isinstance(exc, click.exceptions.ClickException):
-            exc.show()
-            sys.exit(exc.exit_code)
-        if isinstance(exc, click.exceptions.Abort):
-            sys.exit(1)
-        raise
+        found = usage_error(exc)
+        if found is None:
+            raise
+        message, code = found
+        if message:
+            print_error(message)
+        sys.exit(code)
 
 
 if __name__ == "__main__":

@@ -60,3 +60,9 @@ def print_table(title: str, columns: list[str], rows: list[list[str]]) -> None:
     for row in rows:
         table.add_row(*row)
     console.print(table)
+
+
+def print_warning(message: str) -> None:
+    """One yellow line on stderr (input warnings)."""
+    err_console.print(f"[yellow]warning:[/yellow] {message}", soft_wrap=True, markup=True,
+                      highlight=False)

@@ -32,3 +32,10 @@ class StageError(R2SError):
     """A stage cannot run, e.g. because an upstream stage has not been run yet."""
 
     exit_code = 3
+
+
+class UsageError(R2SError):
+    """The command was misused: an unknown stage, option or argument (exit 2, as for the
+    command line's own usage errors)."""
+
+    exit_code = 2

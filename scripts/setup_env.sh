@@ -41,3 +41,12 @@ fi
 "$VENV/bin/python" -m pip install -q "torch==2.13.0"
 "$VENV/bin/python" -m pip install -q -e ".[test]"
 "$VENV/bin/python" -c "import r2s, torch, open3d, pybullet, trimesh, coacd; print('r2s environment ready')"
+
+# The Khronos glTF validator (npm package gltf-validator) for the export tests; optional:
+# without node/npm those tests are skipped with the reason.
+if command -v npm >/dev/null 2>&1; then
+  mkdir -p .node && npm install --silent --prefix .node gltf-validator || \
+    echo "warning: could not install gltf-validator; the glTF validation tests will skip" >&2
+else
+  echo "warning: npm not found; the glTF validation tests will skip" >&2
+fi

@@ -12,6 +12,7 @@ import pytest
 from PIL import Image
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+os.environ.setdefault("MUJOCO_GL", os.environ["PYOPENGL_PLATFORM"])  # read at import
 
 REPO = Path(__file__).resolve().parents[1]
 SEED_DEMO = REPO.parent / "shared" / "seed_demo" / "ycb5"

@@ -51,9 +51,12 @@ def test_cli_engine_option_is_the_engine_option(tmp_path: Path, monkeypatch):
     import r2s.runner.pipeline
     from r2s.cli import app
 
+    from r2s.runner.base import StageResult
+
     calls = []
     monkeypatch.setattr(r2s.runner.pipeline, "run_single_stage",
-                        lambda scene, stage, overrides: calls.append((stage, overrides)))
+                        lambda scene, stage, overrides, **callbacks: calls.append(
+                            (stage, overrides)) or StageResult(stage, ran=True, seconds=0.0))
     result = CliRunner().invoke(app, ["evaluate", str(tmp_path), "--engine", "mujoco",
                                       "--set", "render=false"])
     assert result.exit_code == 0, result.output

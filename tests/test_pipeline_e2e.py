@@ -66,3 +66,19 @@ def test_cli_stage_rerun_and_option_change(sample_run):
     # a changed option reruns that stage alone (nothing downstream of evaluate)
     changed = run_pipeline(scene, overrides={"evaluate.render": "true"})
     assert [r.name for r in changed if r.ran] == ["evaluate"]
+
+
+def test_a_user_mass_in_objects_json_reaches_the_export(sample_run):
+    """objects.json is among physopt's and export's inputs: a user's mass_kg given after a
+    run makes `r2s run` redo them, and the export carries exactly that mass."""
+    scene, _, _ = sample_run
+    objects_file = scene / "input" / "objects.json"
+    data = json.loads(objects_file.read_text())
+    first = data["objects"][0]
+    first["mass_kg"] = 0.123
+    objects_file.write_text(json.dumps(data))
+    reran = {r.name for r in run_pipeline(scene) if r.ran}
+    assert {"physopt", "export"} <= reran, reran
+    exported = json.loads((scene / "export" / "scene.json").read_text())
+    mass = {o["id"]: o["mass_kg"] for o in exported["objects"]}
+    assert mass[first["id"]] == pytest.approx(0.123, rel=1e-9)

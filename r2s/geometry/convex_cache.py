@@ -27,11 +27,14 @@ def mesh_key(mesh: trimesh.Trimesh, **params: object) -> str:
 
 def cached_convex_decomposition(mesh: trimesh.Trimesh, cache_dir: Path | None,
                                 threshold: float = 0.05, max_pieces: int = 64,
-                                seed: int = 0) -> list[trimesh.Trimesh]:
-    """:func:`r2s.geometry.convex.convex_decomposition`, memoised in ``cache_dir``."""
+                                seed: int = 0, method: str = "vhacd") -> list[trimesh.Trimesh]:
+    """:func:`r2s.geometry.convex.convex_decomposition`, memoised in ``cache_dir`` (the key
+    names ``method`` only when it is not V-HACD, the default)."""
     if cache_dir is None:
-        return convex_decomposition(mesh, threshold=threshold, max_pieces=max_pieces, seed=seed)
-    key = mesh_key(mesh, threshold=threshold, max_pieces=max_pieces, seed=seed)
+        return convex_decomposition(mesh, threshold=threshold, max_pieces=max_pieces, seed=seed,
+                                    method=method)
+    extra = {} if method == "vhacd" else {"method": method}
+    key = mesh_key(mesh, threshold=threshold, max_pieces=max_pieces, seed=seed, **extra)
     path = Path(cache_dir) / f"{key}.npz"
     if path.is_file():
         try:
@@ -41,7 +44,8 @@ def cached_convex_decomposition(mesh: trimesh.Trimesh, cache_dir: Path | None,
                     for k in range(count)]
         except Exception:
             path.unlink(missing_ok=True)
-    pieces = convex_decomposition(mesh, threshold=threshold, max_pieces=max_pieces, seed=seed)
+    pieces = convex_decomposition(mesh, threshold=threshold, max_pieces=max_pieces, seed=seed,
+                                  method=method)
     arrays: dict[str, np.ndarray] = {"count": np.array(len(pieces))}
     for k, p in enumerate(pieces):
         arrays[f"v{k}"] = np.asarray(p.vertices)

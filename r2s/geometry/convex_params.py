@@ -10,19 +10,32 @@ the per-user memo of pieces.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
+
+ConvexMethod = Literal["vhacd", "coacd"]
+DEFAULT_METHOD: ConvexMethod = "vhacd"
 
 
 @dataclass(frozen=True)
 class ConvexParams:
-    """threshold: the decomposition's concavity threshold (CoACD's units, dimensionless);
-    max_pieces: most convex pieces per object."""
+    """threshold: CoACD's concavity threshold (dimensionless; used by method="coacd" only);
+    max_pieces: most convex pieces per object; method: "vhacd" (PyBullet's V-HACD, the
+    default) or "coacd" (:func:`r2s.geometry.convex.convex_decomposition`)."""
 
     threshold: float = 0.05
     max_pieces: int = 64
+    method: ConvexMethod = DEFAULT_METHOD
 
     def as_kwargs(self) -> dict:
-        """Keyword arguments of :func:`r2s.geometry.convex_cache.cached_convex_decomposition`."""
-        return {"threshold": float(self.threshold), "max_pieces": int(self.max_pieces)}
+        """Keyword arguments of :func:`r2s.geometry.convex_cache.cached_convex_decomposition`.
+
+        ``method`` is named only when it is not the default, so the cache keys of V-HACD
+        pieces (and those ``r2s synth`` primed) stay what they were before it was selectable.
+        """
+        kwargs: dict = {"threshold": float(self.threshold), "max_pieces": int(self.max_pieces)}
+        if self.method != DEFAULT_METHOD:
+            kwargs["method"] = self.method
+        return kwargs
 
 
 DEFAULT_CONVEX = ConvexParams()

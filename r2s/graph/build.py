@@ -10,8 +10,7 @@ import trimesh
 
 from r2s.graph.nodes import ObjectNode, build_object_node, gravity_frame
 from r2s.graph.proximity import aabb_overlap_pairs
-from r2s.graph.schema import (ContactGraph, GraphNode, Obb, PlaneSummary, ProximityEdge,
-                              SupportEdge)
+from r2s.graph.schema import ContactGraph, GraphNode, Obb, PlaneSummary, ProximityEdge
 from r2s.graph.support import (TABLE_ID, SupportParams, choose_supports,
                                support_candidates)
 
@@ -115,20 +114,16 @@ def build_contact_graph(objects: list[PosedObject], gravity: np.ndarray,
                                     np.asarray(plane_normal), params.support)
     parent, chosen = choose_supports(candidates, params.support)
     depth = _depths(parent)
-    support_pairs = {tuple(sorted((c.child, c.parent))) for c, _ in chosen}
+    support_pairs = {tuple(sorted((c.child, c.parent))) for c in chosen}
     prox = aabb_overlap_pairs(ids, np.stack([n.aabb_m for n in nodes]) if nodes else
                               np.zeros((0, 2, 3)), params.proximity_margin_m)
-    order = support_order(parent, [(c.parent, c.child) for c, _ in chosen])
+    order = support_order(parent, [(c.parent, c.child) for c in chosen])
     table = GraphNode(id=TABLE_ID, label="table", is_root=True, parent=None, depth=0)
     return ContactGraph(
         up=frame.up.tolist(), plane_basis=frame.basis.tolist(),
         plane_point=np.asarray(plane_point, dtype=float).tolist(),
         nodes=[table] + [_node_model(n, parent[n.id], depth[n.id]) for n in nodes],
-        support_edges=[SupportEdge(child=c.child, parent=c.parent, likelihood=c.likelihood,
-                                   d_gap=c.d_gap, d_com=c.d_com, gap_m=c.gap_m,
-                                   com_distance_m=c.com_distance_m,
-                                   plane_height_m=c.plane_height_m, in_tree=in_tree)
-                       for c, in_tree in chosen],
+        support_edges=chosen,
         proximity_edges=[ProximityEdge(a=a, b=b, support=(a, b) in support_pairs)
                          for a, b in prox],
         order=order,

@@ -64,6 +64,10 @@ class GraphNode(BaseModel):
 
 
 class SupportEdge(BaseModel):
+    """One support relation (child rests on parent; 0 is the table) with the terms of its
+    likelihood H (r2s.graph.support). ``in_tree``: the edge is the child's parent in the
+    support tree; candidates start outside it."""
+
     model_config = ConfigDict(extra="allow")
 
     child: int
@@ -74,7 +78,7 @@ class SupportEdge(BaseModel):
     gap_m: float
     com_distance_m: float
     plane_height_m: float
-    in_tree: bool
+    in_tree: bool = False
 
 
 class ProximityEdge(BaseModel):

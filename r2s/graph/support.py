@@ -26,6 +26,7 @@ import numpy as np
 
 from r2s.graph.nodes import GravityFrame, ObjectNode, footprint_radius_m
 from r2s.graph.polygon import contains, convex_overlap, distance_to_polygon
+from r2s.graph.schema import SupportEdge
 
 TABLE_ID = 0
 
@@ -41,16 +42,13 @@ class SupportParams:
     max_support_gap_m: float = 0.01
 
 
-@dataclass(frozen=True)
-class SupportCandidate:
-    child: int
-    parent: int
-    likelihood: float
-    d_gap: float
-    d_com: float
-    gap_m: float
-    com_distance_m: float
-    plane_height_m: float
+def _candidate(child: int, parent: int, likelihood: float, d_gap: float, d_com: float,
+               gap_m: float, com_distance_m: float, plane_height_m: float) -> SupportEdge:
+    """A support candidate, not (yet) in the tree."""
+    return SupportEdge(child=child, parent=parent, likelihood=float(likelihood),
+                       d_gap=float(d_gap), d_com=float(d_com), gap_m=float(gap_m),
+                       com_distance_m=float(com_distance_m),
+                       plane_height_m=float(plane_height_m))
 
 
 def is_broad_phase_candidate(child: ObjectNode, parent: ObjectNode, tol_m: float) -> bool:
@@ -72,21 +70,21 @@ def _likelihood(gap_m: float, com_distance_m: float, com_scale_m: float,
 
 
 def object_candidate(child: ObjectNode, parent: ObjectNode, frame: GravityFrame,
-                     params: SupportParams) -> SupportCandidate | None:
+                     params: SupportParams) -> SupportEdge | None:
     """Best plane of ``parent`` for ``child`` (None if no plane lies under the child)."""
     uv = frame.project(child.samples_world_m)
     h = frame.height(child.samples_world_m)
     com_uv = frame.project(child.com_world_m[None])
     com_distance = float(distance_to_polygon(parent.footprint_uv_m, com_uv)[0])
     com_scale = max(footprint_radius_m(child, frame), params.min_com_scale_m)
-    best: SupportCandidate | None = None
+    best: SupportEdge | None = None
     for plane in parent.support_planes:
         over = contains(plane.polygon_uv_m, uv, tol=1e-9)
         if not np.any(over):
             continue
         gap = float(h[over].min() - plane.height_m)
         H, d_gap, d_com = _likelihood(gap, com_distance, com_scale, params)
-        cand = SupportCandidate(child.id, parent.id, H, d_gap, d_com, gap, com_distance,
+        cand = _candidate(child.id, parent.id, H, d_gap, d_com, gap, com_distance,
                                 plane.height_m)
         if best is None or (cand.likelihood, -abs(cand.gap_m)) > (best.likelihood, -abs(best.gap_m)):
             best = cand
@@ -95,7 +93,7 @@ def object_candidate(child: ObjectNode, parent: ObjectNode, frame: GravityFrame,
 
 def table_candidate(child: ObjectNode, shadowing: list[ObjectNode], frame: GravityFrame,
                     plane_point: np.ndarray, plane_normal: np.ndarray,
-                    params: SupportParams) -> SupportCandidate:
+                    params: SupportParams) -> SupportEdge:
     """The support plane as a parent (see the module docstring)."""
     n = np.asarray(plane_normal, dtype=np.float64)
     n = n / np.linalg.norm(n)
@@ -110,14 +108,14 @@ def table_candidate(child: ObjectNode, shadowing: list[ObjectNode], frame: Gravi
     else:
         gap = float(h.min())
         H, d_gap, d_com = 0.0, 1.0, 0.0
-    return SupportCandidate(child.id, TABLE_ID, H, d_gap, d_com, gap, 0.0, 0.0)
+    return _candidate(child.id, TABLE_ID, H, d_gap, d_com, gap, 0.0, 0.0)
 
 
 def support_candidates(nodes: list[ObjectNode], frame: GravityFrame, plane_point: np.ndarray,
                        plane_normal: np.ndarray, params: SupportParams
-                       ) -> dict[int, list[SupportCandidate]]:
+                       ) -> dict[int, list[SupportEdge]]:
     """Every child's scored candidates (table included), best first."""
-    out: dict[int, list[SupportCandidate]] = {}
+    out: dict[int, list[SupportEdge]] = {}
     for child in nodes:
         below = [p for p in nodes
                  if is_broad_phase_candidate(child, p, params.footprint_overlap_tol_m)]
@@ -131,8 +129,8 @@ def support_candidates(nodes: list[ObjectNode], frame: GravityFrame, plane_point
     return out
 
 
-def choose_supports(candidates: dict[int, list[SupportCandidate]], params: SupportParams
-                    ) -> tuple[dict[int, int], list[tuple[SupportCandidate, bool]]]:
+def choose_supports(candidates: dict[int, list[SupportEdge]], params: SupportParams
+                    ) -> tuple[dict[int, int], list[SupportEdge]]:
     """Tree parent per child (the max-H candidate) and the support edges to record.
 
     Recorded: the tree edge, plus every other candidate with H >= min_support_likelihood
@@ -141,15 +139,15 @@ def choose_supports(candidates: dict[int, list[SupportCandidate]], params: Suppo
     Returns
     -------
     parent : child id -> parent id (0 = table).
-    edges : (candidate, in_tree) pairs.
+    edges : the recorded edges, ``in_tree`` set on the tree's.
     """
     parent: dict[int, int] = {}
-    edges: list[tuple[SupportCandidate, bool]] = []
+    edges: list[SupportEdge] = []
     for child, cands in candidates.items():
         best = cands[0]
         parent[child] = best.parent
-        edges.append((best, True))
+        edges.append(best.model_copy(update={"in_tree": True}))
         for c in cands[1:]:
             if c.likelihood >= params.min_support_likelihood and abs(c.gap_m) <= params.max_support_gap_m:
-                edges.append((c, False))
+                edges.append(c)
     return parent, edges

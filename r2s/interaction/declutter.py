@@ -21,6 +21,7 @@ import pybullet as pb
 from r2s.errors import StageError
 from r2s.io.atomic import atomic_write_json, commit_dir, recover_dir, scratch_dir
 from r2s.io.paths import ScenePaths
+from r2s.io.scene_lock import scene_lock
 from r2s.metrics.stability import rotation_angle_deg
 from r2s.physopt.hierarchy import parents_from_graph
 from r2s.sim.export_scene import export_ground_truth
@@ -112,6 +113,12 @@ def replay_order(export_dir: Path, order: list[int]) -> list[dict]:
 
 
 def declutter(scene_dir: Path) -> dict:
+    """Plan and simulate the removal order; holds the scene's write lock while it writes."""
+    with scene_lock(Path(scene_dir)):
+        return _declutter(scene_dir)
+
+
+def _declutter(scene_dir: Path) -> dict:
     paths = ScenePaths(Path(scene_dir))
     if not paths.export_scene.is_file():
         raise StageError(f"{paths.export_scene} is missing; run 'r2s export' first")

@@ -31,6 +31,7 @@ from r2s.io.interaction_input import ObservedPush, load_observed_push, read_true
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import ScenePaths
 from r2s.io.scene_json import read_gt_scene
+from r2s.io.scene_lock import scene_lock
 from r2s.metrics.geometry import posed
 from r2s.metrics.push_prediction import motion_error, observed_points, push_ucd
 from r2s.sim.pybullet_bodies import connect_direct
@@ -94,7 +95,13 @@ def prediction_error(paths: ScenePaths, loaded: LoadedScene, initial: dict, fina
 
 
 def predict(scene_dir: Path, action_path: Optional[Path] = None) -> dict:
-    """Replay the push on ``export/``; returns the summary written to predicted.json."""
+    """Replay the push on ``export/``; returns the summary written to predicted.json.
+    Holds the scene's write lock (:mod:`r2s.io.scene_lock`) while it writes."""
+    with scene_lock(Path(scene_dir)):
+        return _predict(scene_dir, action_path)
+
+
+def _predict(scene_dir: Path, action_path: Optional[Path]) -> dict:
     paths = ScenePaths(Path(scene_dir))
     if not paths.export_scene.is_file():
         raise StageError(f"{paths.export_scene} is missing; run 'r2s export' first")

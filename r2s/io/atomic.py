@@ -112,3 +112,24 @@ def commit_dir(tmp: Path, final: Path) -> None:
     os.replace(tmp, final)
     if old.exists():
         shutil.rmtree(old)
+
+
+def recover_scene(root: Path) -> list[str]:
+    """Undo half-done swaps and drop every stage's scratch folder under ``root``.
+
+    Call only while holding the scene's lock (:mod:`r2s.io.scene_lock`): then no scratch
+    folder belongs to a live run. Returns the names of the folders removed or restored.
+    """
+    root = Path(root)
+    touched: list[str] = []
+    for entry in sorted(root.iterdir()):
+        name = entry.name
+        if not entry.is_dir():
+            continue
+        if name.startswith(".old-"):
+            recover_dir(root / name[len(".old-"):])
+            touched.append(name)
+        elif name.startswith(".tmp-"):
+            shutil.rmtree(entry, ignore_errors=True)
+            touched.append(name)
+    return touched

@@ -19,7 +19,18 @@ from r2s.errors import InputError
 from r2s.io.paths import ScenePaths
 
 MIN_MASK_PIXELS = 20
-"""An instance with fewer visible pixels than this is reported as an empty mask."""
+"""An instance with fewer pixels with valid depth than this is skipped with a warning."""
+
+TABLE_DEPTH_RANGE_M = (0.05, 10.0)
+"""Median depth outside this range is an error: the depth unit is wrong (a tabletop seen
+from 5 cm or from tens of metres is not a tabletop scene)."""
+
+TABLE_DEPTH_WARN_M = 3.0
+"""Median depth beyond this (and within the range above) gets a warning."""
+
+DEPTH_AGREE_M = 0.002
+"""depth.png and depth.npy agree when they differ by less than this (plus one depth unit)
+on 99% of the pixels valid in both."""
 
 
 def _check_matrix(value: list, rows: int, cols: int, name: str) -> list:
@@ -90,6 +101,16 @@ class ObjectEntry(BaseModel):
     label: Optional[str] = None
     prior_mesh: Optional[str] = None
     world_from_prior: Optional[list[list[float]]] = None
+    mass_kg: Optional[float] = None
+    density_kg_m3: Optional[float] = None
+    friction: Optional[float] = None
+
+    @field_validator("mass_kg", "density_kg_m3", "friction")
+    @classmethod
+    def _positive(cls, v: Optional[float]) -> Optional[float]:
+        if v is not None and not (np.isfinite(v) and v > 0):
+            raise ValueError("mass_kg, density_kg_m3 and friction must be positive numbers")
+        return v
 
     @field_validator("id")
     @classmethod
@@ -168,6 +189,9 @@ class InputScene:
     camera: Camera
     objects: list[ObjectSpec] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    skipped_ids: list[int] = field(default_factory=list)
+    """Instances in ``masks`` left out (too few pixels with valid depth); named in
+    ``warnings``."""
 
     @property
     def ids(self) -> list[int]:
@@ -276,6 +300,42 @@ def load_depth_file(png: Path, npy: Path, width: int, height: int,
     return depth
 
 
+def check_depth_files(paths: ScenePaths, depth_m: np.ndarray, width: int, height: int,
+                      depth_unit_m: float) -> list[str]:
+    """When both depth.png and depth.npy exist: depth.npy is the one used; a warning if the
+    two agree, :class:`InputError` if they disagree (the scene would silently be built from
+    one of two different observations)."""
+    if not (paths.depth_png.is_file() and paths.depth_npy.is_file()):
+        return []
+    png = load_depth_file(paths.depth_png, paths.depth_png.with_suffix(".absent"), width,
+                          height, depth_unit_m)
+    both = np.isfinite(png) & np.isfinite(depth_m)
+    diff = np.abs(png[both] - depth_m[both])
+    tol = DEPTH_AGREE_M + depth_unit_m
+    if both.sum() == 0 or np.quantile(diff, 0.99) > tol:
+        median_mm = 1000 * float(np.median(diff)) if len(diff) else float("nan")
+        raise InputError(paths.depth_png, f"both depth.png and depth.npy exist and disagree "
+                         f"(median |difference| {median_mm:.0f} mm over {int(both.sum())} "
+                         "pixels); keep only the right one")
+    return [f"{paths.input}: both depth.png and depth.npy exist; they agree, depth.npy is used"]
+
+
+def check_depth_range(path: Path, depth_m: np.ndarray, depth_unit_m: float) -> list[str]:
+    """:class:`InputError` when the median depth is outside :data:`TABLE_DEPTH_RANGE_M`
+    (a wrong depth unit), a warning when it is beyond :data:`TABLE_DEPTH_WARN_M`."""
+    median = float(np.nanmedian(depth_m))
+    unit = (f"with depth_unit_m {depth_unit_m:g} (camera.json)" if path.suffix == ".png"
+            else "(depth.npy must hold metres)")
+    lo, hi = TABLE_DEPTH_RANGE_M
+    if not lo <= median <= hi:
+        raise InputError(path, f"median depth {median:.4g} m {unit}: a tabletop is "
+                         f"{lo:g}-{hi:g} m from the camera; is the depth unit right?")
+    if median > TABLE_DEPTH_WARN_M:
+        return [f"{path}: median depth {median:.2f} m {unit} is far for a tabletop; check "
+                "the depth unit"]
+    return []
+
+
 def load_masks(path: Path, width: int, height: int) -> np.ndarray:
     img = _read_image(path)
     arr = np.asarray(img)
@@ -310,19 +370,23 @@ def load_input(scene_dir: Path) -> InputScene:
     w, h = camera.width, camera.height
     rgb = load_rgb(paths.rgb, w, h)
     depth = load_depth(paths, w, h, depth_unit_m)
+    warnings = check_depth_files(paths, depth, w, h, depth_unit_m)
+    warnings += check_depth_range(paths.depth_npy if paths.depth_npy.is_file() else paths.depth_png,
+                                  depth, depth_unit_m)
     masks = load_masks(paths.masks, w, h)
     entries = load_objects(paths)
 
     ids = sorted(int(i) for i in np.unique(masks) if i > 0)
     objects: list[ObjectSpec] = []
+    skipped: list[int] = []
     for obj_id in ids:
-        visible = (masks == obj_id) & np.isfinite(depth)
-        if int(visible.sum()) < MIN_MASK_PIXELS:
-            raise InputError(
-                paths.masks,
-                f"instance {obj_id} has only {int(visible.sum())} pixels with valid depth "
-                f"(need {MIN_MASK_PIXELS})",
-            )
+        visible = int(((masks == obj_id) & np.isfinite(depth)).sum())
+        if visible < MIN_MASK_PIXELS:
+            skipped.append(obj_id)
+            warnings.append(f"{paths.masks}: instance {obj_id} has only {visible} pixel"
+                            f"{'' if visible == 1 else 's'} with valid depth (need "
+                            f"{MIN_MASK_PIXELS}); it is skipped")
+            continue
         entry = entries.get(obj_id)
         prior, pose, label = None, None, f"object_{obj_id}"
         if entry is not None:
@@ -335,9 +399,12 @@ def load_input(scene_dir: Path) -> InputScene:
             if entry.world_from_prior is not None:
                 pose = np.asarray(entry.world_from_prior, dtype=np.float64)
         objects.append(ObjectSpec(id=obj_id, label=label, prior_mesh=prior, world_from_prior=pose))
-    warnings = [
+    if not objects:
+        raise InputError(paths.masks, f"no instance has {MIN_MASK_PIXELS} pixels with valid "
+                         f"depth (instances {', '.join(map(str, skipped))})")
+    warnings += [
         f"{paths.objects}: object {i} does not appear in masks.png and is skipped"
         for i in sorted(set(entries) - set(ids))
     ]
     return InputScene(rgb=rgb, depth_m=depth, masks=masks, camera=camera, objects=objects,
-                      warnings=warnings)
+                      warnings=warnings, skipped_ids=skipped)

@@ -8,6 +8,7 @@ from typing import Optional
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from r2s.errors import InputError
+from r2s.io.finite import first_non_finite
 from r2s.io.input_scene import read_json_file
 from r2s.io.state import SupportPlane
 
@@ -65,14 +66,24 @@ def read_gt_scene(path: Path) -> Optional[GtScene]:
     path = Path(path)
     if not path.exists():
         return None
+    data = read_json_file(path)
+    _require_finite(path, data)
     try:
-        return GtScene.model_validate(read_json_file(path))
+        return GtScene.model_validate(data)
     except ValidationError as exc:
         raise InputError(path, f"malformed gt scene: {exc.errors()[0]['msg']}") from None
 
 
+def _require_finite(path: Path, data: object) -> None:
+    bad = first_non_finite(data)
+    if bad:
+        raise InputError(path, f"non-finite number (NaN or inf) at {bad}")
+
+
 def read_export_scene(path: Path) -> ExportScene:
+    data = read_json_file(Path(path))
+    _require_finite(path, data)
     try:
-        return ExportScene.model_validate(read_json_file(Path(path)))
+        return ExportScene.model_validate(data)
     except ValidationError as exc:
         raise InputError(path, f"malformed export scene: {exc.errors()[0]['msg']}") from None

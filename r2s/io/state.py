@@ -22,6 +22,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from r2s.errors import StageError
 from r2s.io.atomic import atomic_write_json
+from r2s.io.finite import first_non_finite
 from r2s.io.input_scene import read_json_file
 from r2s.io.paths import STATE_FILE
 
@@ -82,11 +83,23 @@ def read_state(stage_dir: Path) -> SceneState:
     path = Path(stage_dir) / STATE_FILE
     if not path.is_file():
         raise StageError(f"{path}: missing; run the '{Path(stage_dir).name}' stage first")
+    data = read_json_file(path)
+    bad = first_non_finite(data)
+    if bad:
+        raise StageError(f"{path}: non-finite number at {bad}; rerun the "
+                         f"'{Path(stage_dir).name}' stage")
     try:
-        return SceneState.model_validate(read_json_file(path))
+        return SceneState.model_validate(data)
     except ValidationError as exc:
         raise StageError(f"{path}: malformed state ({exc.errors()[0]['msg']})") from None
 
 
 def write_state(stage_dir: Path, state: SceneState) -> None:
-    atomic_write_json(Path(stage_dir) / STATE_FILE, state.model_dump())
+    """Write ``stage_dir/state.json``; :class:`StageError` if a number is NaN or inf (JSON
+    would turn it into null, a state no later stage can read)."""
+    data = state.model_dump()
+    bad = first_non_finite(data)
+    if bad:
+        raise StageError(f"{Path(stage_dir).name} state: non-finite number at {bad} "
+                         "(the optimisation diverged); nothing written")
+    atomic_write_json(Path(stage_dir) / STATE_FILE, data)

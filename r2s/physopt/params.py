@@ -8,12 +8,13 @@ A round of physopt never edits an object's parameters in place: it builds the ne
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Iterable
+from typing import Iterable, Optional
 
 import numpy as np
 
 from r2s.geometry.mass_properties import mass_properties
 from r2s.io.state import SceneState
+from r2s.physical.provenance import nominal_mass
 
 INNER_BOX_MARGIN = 0.3
 """The COM is kept inside the central box of the shape's bounding box that leaves this
@@ -44,6 +45,12 @@ class ObjectParams:
     com_lo: np.ndarray
     com_hi: np.ndarray
     movable: bool = field(default=True)
+    mass_provenance: dict = field(default_factory=dict)
+    """Where the nominal mass came from (:func:`r2s.physical.provenance.nominal_mass`)."""
+    user_friction: Optional[float] = None
+    """A friction given in input/objects.json: kept, never raised by a repair round."""
+    centroid_in_object: Optional[np.ndarray] = None
+    """(3,) the uniform-density centroid, to tell a repaired COM from the shape's own."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "world_from_object", _frozen_array(self.world_from_object, (4, 4)))
@@ -64,15 +71,23 @@ def inner_box(bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lo + INNER_BOX_MARGIN * (hi - lo), hi - INNER_BOX_MARGIN * (hi - lo)
 
 
-def initial_params(state: SceneState, meshes: dict, pieces: dict, density_kg_m3: float,
-                   mass_bounds: tuple[float, float], friction_init: float) -> Params:
+def initial_params(state: SceneState, meshes: dict, pieces: dict,
+                   density_kg_m3: Optional[float], mass_bounds: tuple[float, float],
+                   friction_init: float, users: Optional[dict] = None) -> Params:
     """Start values: the state's estimates, else the uniform-density body; the mass
-    clipped to ``mass_bounds`` times the nominal mass."""
+    clipped to ``mass_bounds`` times the nominal mass. The nominal mass is the user's
+    (``users``: input/objects.json entries by id), else volume x the user's density, else
+    ``density_kg_m3``, else the label's density (:mod:`r2s.physical.density_table`); a
+    user's mass is not bounded around, it is kept."""
     params: Params = {}
-    lo, hi = mass_bounds
     for obj in state.objects:
-        nominal = mass_properties(meshes[obj.id], pieces[obj.id], density_kg_m3=density_kg_m3)
+        user = (users or {}).get(obj.id)
+        volume = mass_properties(meshes[obj.id], pieces[obj.id], mass_kg=1.0).volume_m3
+        nominal_kg, mass_prov = nominal_mass(obj.label, volume, user, density_kg_m3)
+        nominal = mass_properties(meshes[obj.id], pieces[obj.id], mass_kg=nominal_kg)
+        lo, hi = (1.0, 1.0) if mass_prov["source"] == "user" else mass_bounds
         mass = obj.mass_kg if obj.mass_kg is not None else nominal.mass_kg
+        user_mu = None if user is None else user.friction
         com_lo, com_hi = inner_box(meshes[obj.id].bounds)
         params[obj.id] = ObjectParams(
             world_from_object=obj.pose,
@@ -80,8 +95,10 @@ def initial_params(state: SceneState, meshes: dict, pieces: dict, density_kg_m3:
             nominal_mass_kg=nominal.mass_kg,
             com_in_object=(obj.com_in_object if obj.com_in_object is not None
                            else nominal.com_in_object),
-            friction=float(obj.friction if obj.friction is not None else friction_init),
-            com_lo=com_lo, com_hi=com_hi)
+            friction=float(user_mu if user_mu is not None else obj.friction
+                           if obj.friction is not None else friction_init),
+            com_lo=com_lo, com_hi=com_hi, mass_provenance=mass_prov, user_friction=user_mu,
+            centroid_in_object=np.asarray(nominal.com_in_object, dtype=float))
     return params
 
 

@@ -31,10 +31,12 @@ from pydantic import BaseModel, ConfigDict
 
 from r2s import __version__
 from r2s.console import ProgressFn, silent_progress
-from r2s.errors import R2SError
+from r2s.errors import R2SError, StageError
 from r2s.io.atomic import commit_dir, recover_dir, scratch_dir
 from r2s.io.manifest import Manifest, StageRecord, hash_path, load_manifest, save_manifest
+from r2s.io.output_check import file_hashes, inconsistency, missing_declared
 from r2s.io.paths import ScenePaths
+from r2s.io.scene_lock import scene_lock
 from r2s.scene_model import model_part
 
 
@@ -122,6 +124,9 @@ def staleness(spec: StageSpec, paths: ScenePaths, options: StageOptions,
         return "never ran" if record is None or record.status == "never" else f"last run {record.status}"
     if not out.exists():
         return "output missing"
+    problem = inconsistency(out, (record.model_extra or {}).get("output_files"))
+    if problem:
+        return f"output inconsistent: {problem}"
     if record.options != options.model_dump(mode="json"):
         return "options changed"
     current = _input_hashes(spec, paths, options, manifest)
@@ -138,7 +143,14 @@ def staleness(spec: StageSpec, paths: ScenePaths, options: StageOptions,
 
 def run_stage(spec: StageSpec, scene_dir: Path, options: Optional[StageOptions] = None,
               progress: ProgressFn = silent_progress, force: bool = True) -> StageResult:
-    """Run one stage on ``scene_dir`` (skipped when current unless ``force``)."""
+    """Run one stage on ``scene_dir`` (skipped when current unless ``force``), holding the
+    scene's write lock (:mod:`r2s.io.scene_lock`; re-entrant, so a caller may hold it)."""
+    with scene_lock(Path(scene_dir)):
+        return _run_stage_locked(spec, Path(scene_dir), options, progress, force)
+
+
+def _run_stage_locked(spec: StageSpec, scene_dir: Path, options: Optional[StageOptions],
+                      progress: ProgressFn, force: bool) -> StageResult:
     paths = ScenePaths(Path(scene_dir))
     options = options if options is not None else spec.options_type()
     out = paths.stage_dir(spec.output)
@@ -172,12 +184,17 @@ def run_stage(spec: StageSpec, scene_dir: Path, options: Optional[StageOptions] 
             save_manifest(paths.manifest, manifest)
         raise
     seconds = time.perf_counter() - t0
+    missing = missing_declared(tmp)
+    if missing:  # never record a stage as done with a file it names absent
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise StageError(f"{out}: the {spec.name} stage did not write {', '.join(missing[:3])} "
+                         "that its own JSON names; the previous result is kept")
     commit_dir(tmp, out)
     manifest = load_manifest(paths.manifest)
     manifest.stages[spec.name] = StageRecord(
         status="done", options=options.model_dump(mode="json"), input_hashes=in_hashes,
         output_hash=hash_path(out), started_at=started, seconds=round(seconds, 3),
-        summary=summary, r2s_version=__version__,
+        summary=summary, r2s_version=__version__, output_files=file_hashes(out),
     )
     save_manifest(paths.manifest, manifest)
     return StageResult(spec.name, ran=True, seconds=seconds, summary=summary, reason=reason)

@@ -18,12 +18,13 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from r2s.console import ProgressFn, silent_progress
 from r2s.geometry.convex_cache import cached_convex_decomposition
-from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexParams
+from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexMethod, ConvexParams
 from r2s.geometry.mass_properties import mass_properties
 from r2s.io.export_writer import ExportBody, write_export
 from r2s.io.mesh_io import load_mesh, welded
 from r2s.io.paths import ScenePaths
 from r2s.io.scene_json import read_gt_scene
+from r2s.physical.provenance import resolve_physics
 
 
 class BodyParams(BaseModel):
@@ -32,17 +33,22 @@ class BodyParams(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
 
-    density_kg_m3: float = Field(600.0, gt=0, description="Density where no mass is estimated.")
+    density_kg_m3: Optional[float] = Field(
+        None, gt=0, description="Density where no mass is estimated (unset: by label, "
+                                "r2s/physical/density_table.py).")
     default_friction: float = Field(0.8, gt=0, description="Body friction where none is estimated.")
+    convex_method: ConvexMethod = Field(DEFAULT_CONVEX.method,
+                                        description="Convex decomposition: vhacd or coacd.")
     convex_threshold: float = Field(DEFAULT_CONVEX.threshold, gt=0,
-                                    description="CoACD concavity threshold.")
+                                    description="CoACD concavity threshold "
+                                                "(convex_method=coacd only).")
     max_convex_pieces: int = Field(DEFAULT_CONVEX.max_pieces, ge=1,
                                    description="Most convex pieces per object.")
     restitution: float = Field(0.0, ge=0, le=1, description="Restitution of every body.")
 
     @property
     def convex(self) -> ConvexParams:
-        return ConvexParams(self.convex_threshold, self.max_convex_pieces)
+        return ConvexParams(self.convex_threshold, self.max_convex_pieces, self.convex_method)
 
 
 @dataclass(frozen=True)
@@ -61,6 +67,12 @@ class ObjectItem:
     friction: Optional[float]
     restitution: Optional[float] = None
     extra: dict[str, Any] = field(default_factory=dict)
+    stage: Optional[str] = None
+    provenance: Optional[dict] = None
+    """A stage's own record of where its values came from (physopt writes one)."""
+    fitted: tuple[str, ...] = ()
+    """Values a diagnose fit set ("friction", "com")."""
+    from_gt: bool = False
 
 
 def gt_items(paths: ScenePaths) -> tuple[list, dict, list[ObjectItem]]:
@@ -69,37 +81,45 @@ def gt_items(paths: ScenePaths) -> tuple[list, dict, list[ObjectItem]]:
     items = [ObjectItem(id=obj.id, label=obj.label, mesh_path=paths.gt / obj.mesh,
                         pose=np.asarray(obj.world_from_object), mass_kg=obj.mass_kg,
                         com=np.asarray(obj.com_in_object), friction=obj.friction,
-                        extra={"source": "gt"})
+                        from_gt=True, extra={"source": "gt"})
              for obj in gt.objects]
     return gt.gravity, gt.support.model_dump(), items
 
 
 def build_and_write(out_dir: Path, gravity: list, support: dict, items: list[ObjectItem],
                     params: BodyParams, cache_dir: Optional[Path],
-                    progress: ProgressFn = silent_progress) -> list[ExportBody]:
-    """Decompose, weigh and write every object into ``out_dir`` (export/'s layout)."""
+                    progress: ProgressFn = silent_progress, users: Optional[dict] = None,
+                    camera=None) -> list[ExportBody]:
+    """Decompose, weigh and write every object into ``out_dir`` (export/'s layout).
+
+    ``users``: ``input/objects.json`` entries by id (their mass_kg, density_kg_m3, friction
+    win); ``camera``: the input camera for the MJCF and USD scenes. Mass, friction and COM
+    and their provenance: :func:`r2s.physical.provenance.resolve_physics`."""
     bodies = []
     for k, item in enumerate(items):
         progress(f"object {item.id}: convex decomposition", k / max(len(items), 1))
         mesh = load_mesh(item.mesh_path)
         geom = welded(mesh)
         pieces = cached_convex_decomposition(geom, cache_dir, **params.convex.as_kwargs())
-        props = mass_properties(geom, pieces, mass_kg=item.mass_kg,
-                                density_kg_m3=params.density_kg_m3)
+        unit = mass_properties(geom, pieces, mass_kg=1.0)
+        record = dict(label=item.label, mass_kg=item.mass_kg, friction=item.friction,
+                      com=item.com, stage=item.stage, provenance=item.provenance,
+                      fitted=item.fitted, from_gt=item.from_gt)
+        mass, friction, com, provenance = resolve_physics(
+            record, unit.volume_m3, unit.com_in_object, (users or {}).get(item.id),
+            params.density_kg_m3, params.default_friction)
         # An estimated COM (non-uniform density) keeps the uniform body's inertia: the
         # inertia of a non-uniform body is not observable from one image.
-        com = item.com if item.com is not None else props.com_in_object
         bodies.append(ExportBody(
             id=item.id, label=item.label, visual_mesh=mesh, collision_pieces=pieces,
-            world_from_object=item.pose, mass_kg=props.mass_kg, com_in_object=np.asarray(com),
-            inertia_about_com=props.inertia_about_com,
-            friction=item.friction if item.friction is not None else params.default_friction,
+            world_from_object=item.pose, mass_kg=mass, com_in_object=com,
+            inertia_about_com=unit.inertia_about_com * mass, friction=friction,
             restitution=item.restitution or params.restitution,
-            extra=item.extra,
+            extra={**item.extra, "provenance": provenance},
         ))
     support = dict(support)
     support.setdefault("friction", params.default_friction)
-    write_export(out_dir, gravity, support, bodies)
+    write_export(out_dir, gravity, support, bodies, camera=camera)
     return bodies
 
 

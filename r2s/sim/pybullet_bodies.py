@@ -13,6 +13,8 @@ from typing import Sequence
 import numpy as np
 import pybullet as pb
 
+from r2s.sim.ascii_paths import ascii_safe_paths
+
 TIME_STEP_S = 1.0 / 240.0
 
 
@@ -59,13 +61,43 @@ def _rotation_z_to(normal: np.ndarray) -> np.ndarray:
     return np.eye(3) + vx + vx @ vx * ((1 - c) / s**2)
 
 
+MAX_SHAPE_ARRAY = 16
+"""``createCollisionShapeArray`` keeps only the first 16 shapes and drops the rest without a
+word; a body with more convex pieces is built from one multi-part OBJ instead."""
+
+
+def _multi_part_shape(client: int, files: Sequence[str]) -> int:
+    """One compound collision shape of all ``files`` (convex pieces, object frame): PyBullet
+    makes one convex hull per ``o`` part of an OBJ file, with no limit on their number."""
+    import tempfile
+
+    import trimesh
+
+    lines, offset = [], 0
+    for k, f in enumerate(files):
+        piece = trimesh.load(f, force="mesh", process=False)
+        lines.append(f"o piece_{k}")
+        lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in np.asarray(piece.vertices)]
+        lines += [f"f {a + offset} {b + offset} {c + offset}"
+                  for a, b, c in np.asarray(piece.faces) + 1]
+        offset += len(piece.vertices)
+    with tempfile.TemporaryDirectory(prefix="r2s-pieces-") as tmp:
+        path = Path(tmp) / "pieces.obj"
+        path.write_text("\n".join(lines) + "\n")
+        return pb.createCollisionShape(pb.GEOM_MESH, fileName=str(path), physicsClientId=client)
+
+
 def add_rigid_body(client: int, collision_files: Sequence[Path], world_from_object: np.ndarray,
                    mass_kg: float, com_in_object: Sequence[float], friction: float,
                    restitution: float = 0.0) -> int:
     """One dynamic body made of convex mesh pieces (files in the object frame)."""
     files = [str(f) for f in collision_files]
-    shape = pb.createCollisionShapeArray([pb.GEOM_MESH] * len(files), fileNames=files,
-                                         physicsClientId=client)
+    if len(files) <= MAX_SHAPE_ARRAY:
+        with ascii_safe_paths(files) as names:  # PyBullet crashes on non-ASCII file names
+            shape = pb.createCollisionShapeArray([pb.GEOM_MESH] * len(names), fileNames=names,
+                                                 physicsClientId=client)
+    else:  # the pieces are read by trimesh and handed over in one ASCII-named temporary OBJ
+        shape = _multi_part_shape(client, files)
     pose = np.asarray(world_from_object, dtype=float)
     body = pb.createMultiBody(
         float(mass_kg), shape,

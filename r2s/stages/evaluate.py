@@ -63,14 +63,16 @@ SCENE_KEYS: tuple[str, ...] = (
     "stability_ratio", "settling_time_s", "mean_linear_speed_mps", "mean_angular_speed_radps",
     "max_penetration_mm", "mean_penetration_mm", "floating_objects",
     "chamfer_mm", "fscore", "fscore_threshold_mm", "iou", "centroid_error_mm",
-    "rotation_error_deg", "psnr", "ssim", "lpips",
+    "rotation_error_deg", "mass_rel_error", "psnr", "ssim", "lpips",
     "silhouette_iou", "min_silhouette_iou", "free_space_violation", "ucd_mm",
     "max_displacement_m", "max_displacement_deg", "flagged_objects",
 )
 """Scene-level keys of metrics.json (and of the stage summary)."""
 
 GEOMETRY_KEYS: tuple[str, ...] = ("chamfer_mm", "fscore", "iou", "centroid_error_mm",
-                                  "rotation_error_deg")
+                                  "rotation_error_deg", "mass_rel_error")
+"""Per-object metrics against gt/ (scene value: their mean); ``mass_rel_error`` is
+|mass - gt mass| / gt mass."""
 
 
 class Options(StageOptions):
@@ -202,6 +204,7 @@ def _geometry_of(paths: ScenePaths, obj: ExportObject, gt: GtScene, options: Opt
         "iou": volumetric_iou(recon, truth, options.geometry_samples, options.seed),
         "centroid_error_mm": centroid_error_mm(recon, truth),
         "rotation_error_deg": rot,
+        "mass_rel_error": abs(float(obj.mass_kg) - float(gt_obj.mass_kg)) / float(gt_obj.mass_kg),
     }
 
 

@@ -18,8 +18,8 @@ import numpy as np
 from pydantic import Field
 
 from r2s.scene_model import corrected_input, corrected_state
-from r2s.errors import StageError
-from r2s.io.input_scene import load_input
+from r2s.errors import R2SError, StageError
+from r2s.io.input_scene import load_camera, load_input
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import ScenePaths
 from r2s.io.state import read_state
@@ -28,6 +28,7 @@ from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.io.manifest import Manifest
 from r2s.io.latest_state import latest_state_stage
+from r2s.physical.provenance import user_entries
 from r2s.sim.export_scene import BodyParams, ObjectItem, build_and_write, gt_items
 
 
@@ -67,7 +68,7 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
         source = _resolve_source(paths, options, manifest)
     except StageError:
         return []
-    found = [paths.gt] if source == "gt" else [paths.stage_dir(source)]
+    found = [paths.gt] if source == "gt" else [paths.stage_dir(source), paths.objects]
     if options.observation:
         found += [paths.stage_dir("init"), paths.camera, paths.depth_png, paths.depth_npy,
                   paths.masks]
@@ -76,7 +77,8 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
 
 def _bodies_from_state(paths: ScenePaths, stage: str, model: dict
                        ) -> tuple[list, dict, list[ObjectItem]]:
-    state = corrected_state(read_state(paths.stage_dir(stage)), model)
+    raw = read_state(paths.stage_dir(stage))
+    state = corrected_state(raw, model)
     items = []
     known = set(type(state.objects[0]).model_fields) if state.objects else set()
     for obj in state.objects:
@@ -85,10 +87,25 @@ def _bodies_from_state(paths: ScenePaths, stage: str, model: dict
             id=obj.id, label=obj.label, mesh_path=paths.stage_dir(stage) / obj.mesh,
             pose=obj.pose, mass_kg=obj.mass_kg,
             com=None if obj.com_in_object is None else np.asarray(obj.com_in_object),
-            friction=obj.friction, restitution=obj.restitution,
+            friction=obj.friction, restitution=obj.restitution, stage=stage,
+            provenance=extra.get("provenance"), fitted=_fitted(raw.object(obj.id), obj),
             extra={"source": obj.source, "stage": stage,
                    **{k: v for k, v in extra.items() if _scalar(v)}}))
     return state.gravity, state.support.model_dump(), items
+
+
+def _fitted(before, after) -> tuple[str, ...]:
+    """Values the scene's model (a diagnose fit) changed: "friction", "com"."""
+    out = ("friction",) if before.friction != after.friction else ()
+    return out + (("com",) if before.com_in_object != after.com_in_object else ())
+
+
+def _camera(paths: ScenePaths):
+    """The input camera (for the USD and MJCF scenes), or None without input/camera.json."""
+    try:
+        return load_camera(paths.camera)[0]
+    except R2SError:
+        return None
 
 
 def _scalar(v: object) -> bool:
@@ -130,6 +147,7 @@ def run(ctx: StageContext) -> dict:
         gravity, support, items = gt_items(paths)
     else:
         gravity, support, items = _bodies_from_state(paths, source, ctx.manifest.model)
+    users = {} if source == "gt" else user_entries(paths.root)
     warnings: list[str] = []
     observed: dict = {}
     if opt.observation:
@@ -139,7 +157,7 @@ def run(ctx: StageContext) -> dict:
             if item.id in blocks:
                 item.extra["observation"] = blocks[item.id]
     bodies = build_and_write(ctx.out_dir, gravity, support, items, opt, paths.convex_cache,
-                             ctx.progress)
+                             ctx.progress, users=users, camera=_camera(paths))
     ctx.progress("done", 1.0)
     summary = {"source": source, "objects": len(bodies),
                "collision_pieces": int(sum(len(b.collision_pieces) for b in bodies))}

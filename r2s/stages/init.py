@@ -32,13 +32,17 @@ from PIL import Image
 from pydantic import Field
 from scipy import ndimage
 
-from r2s.errors import StageError
+from r2s.errors import InputError, StageError
+from r2s.geometry import sanity
 from r2s.geometry.camera import backproject
+from r2s.geometry.carving import carve_view
 from r2s.geometry.colors import color_mesh_from_image, has_appearance
 from r2s.geometry.completion import complete_from_points
 from r2s.geometry.free_space import view_constraint
 from r2s.geometry.mask_edges import foreign_rim_pixels
+from r2s.geometry.point_cleanup import object_point_mask
 from r2s.geometry.overlay import fit_overlay, render_instances
+from r2s.geometry.prior_refine import RefineOptions, refine_axis_scale
 from r2s.geometry.plane import PlaneFit, fit_plane_ransac, signed_distance
 from r2s.geometry.registration import (IcpOptions, RegistrationResult, register_prior,
                                        surface_fit, voxel_downsample)
@@ -99,11 +103,32 @@ class Options(StageOptions):
     global_fallback_fitness: float = Field(0.5, ge=0, le=1, description="Run the global pose "
                                            "search too when ICP from the given prior pose "
                                            "explains fewer observed points than this.")
+    axis_scale: bool = Field(False, description="After registration, refine the prior's "
+                             "scale per axis (single-image priors get proportions wrong per "
+                             "axis) with its pose, and keep it out of the support plane "
+                             "(geometry/prior_refine.py). Off by default: measured neutral "
+                             "on init's CD (docs/realistic.md).")
+    axis_scale_min: float = Field(0.8, gt=0, le=1, description="Smallest per-axis scale.")
+    axis_scale_max: float = Field(1.25, ge=1, description="Largest per-axis scale.")
+    rest_on_support: bool = Field(False, description="With axis_scale: pull a prior whose "
+                                  "bottom is within 20 mm of the support plane onto it (else "
+                                  "only out of it).")
     completion_cell_m: float = Field(0.003, gt=0, description="Grid cell of the height-field "
                                      "completion of objects without a prior.")
     completion_hull_margin_px: float = Field(0.25, ge=0, description="Grow a completed "
                                              "object's footprint by this many pixels' "
                                              "footprint on the surface.")
+    completion_clean_points: bool = Field(
+        True, description="Before completing, drop mask points on the support plane and "
+                          "regions of the mask across a depth jump from the object's main "
+                          "surface (bleed; see geometry/point_cleanup.py).")
+    completion_carve: bool = Field(
+        True, description="Carve a completed object against the depth image: no material "
+                          "where the camera saw past it (see geometry/carving.py).")
+    completion_extend_fraction: float = Field(
+        0.0, ge=0, description="Sweep a completed object's footprint towards the camera "
+                               "into space hidden by nearer things, by up to this fraction "
+                               "of its visible size (0 = off; see geometry/completion.py).")
     support_points_max: int = Field(20000, ge=100, description="Most support-plane points "
                                     "kept in support_points.npy.")
     seed: int = Field(0, description="Random seed (RANSAC, subsampling).")
@@ -164,11 +189,26 @@ def _object_points(scene: InputScene, obj_id: int, o: Options, plane: PlaneFit
     return pts, pix
 
 
+def _checked_prior(spec: ObjectSpec, pts: np.ndarray, flags: list[str]) -> trimesh.Trimesh:
+    """The prior mesh, refused when degenerate or in other units (one line naming it); a
+    size that is merely doubtful is added to ``flags``."""
+    prior = load_mesh(spec.prior_mesh)
+    problem = sanity.degenerate_prior(prior)
+    if problem is None:
+        problem, is_error = sanity.prior_size_problem(prior, pts)
+        if problem and not is_error:
+            flags.append(f"object {spec.id}: {problem}")
+            problem = None
+    if problem:
+        raise InputError(spec.prior_mesh, f"object {spec.id}: {problem}")
+    return prior
+
+
 def _register(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, plane: PlaneFit,
-              o: Options) -> tuple[trimesh.Trimesh, np.ndarray, RegistrationResult]:
+              o: Options, flags: list[str]) -> tuple[trimesh.Trimesh, np.ndarray, RegistrationResult]:
     """The prior in its object frame (recentred, scaled, coloured) and its pose."""
     cam = scene.camera
-    prior = load_mesh(spec.prior_mesh)
+    prior = _checked_prior(spec, pts, flags)
     view = view_constraint(cam.K, cam.world_from_camera, scene.depth_m, scene.masks == spec.id,
                            margin_px=o.silhouette_margin_px)
     reg_pts = voxel_downsample(pts, o.voxel_size_m)
@@ -186,6 +226,13 @@ def _register(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, plane: Plane
     mesh.apply_scale(result.scale)
     world_from_object = result.world_from_object.copy()
     world_from_object[:3, 3] += world_from_object[:3, :3] @ (result.scale * centre)
+    if o.axis_scale:
+        refined = refine_axis_scale(
+            prior, reg_pts, result.world_from_object, result.scale, cam.world_from_camera[:3, 3],
+            view, (plane.point, plane.normal),
+            RefineOptions(scale_bounds=(o.axis_scale_min, o.axis_scale_max), seed=o.seed,
+                          support_one_sided=not o.rest_on_support, contact_m=0.02))
+        mesh, world_from_object = refined.object_mesh(prior)
     if not has_appearance(mesh):
         mesh = color_mesh_from_image(mesh, world_from_object, scene.rgb, scene.depth_m, cam.K,
                                      cam.world_from_camera, scene.masks == spec.id)
@@ -200,14 +247,30 @@ def _complete(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, pix: np.ndar
     cam = scene.camera
     depth = scene.depth_m[pix[:, 0], pix[:, 1]]
     pixel_m = float(np.median(depth)) / float(cam.K[0, 0])
+    if o.completion_clean_points:
+        keep = object_point_mask(pts, pix, depth, plane.point, plane.normal)
+        pts, pix = pts[keep], pix[keep]
+    view = (carve_view(cam.K, cam.world_from_camera, scene.depth_m, pix)
+            if o.completion_carve else None)
     try:
         shape = complete_from_points(pts, plane.point, plane.normal,
                                      colors=scene.rgb[pix[:, 0], pix[:, 1]],
                                      cell_m=o.completion_cell_m, below_points_world=others,
-                                     hull_margin_m=o.completion_hull_margin_px * pixel_m)
+                                     hull_margin_m=o.completion_hull_margin_px * pixel_m,
+                                     view=view,
+                                     extend_fraction=o.completion_extend_fraction)
     except ValueError as exc:
         raise StageError(f"object {spec.id}: completion failed ({exc})") from None
     return shape.mesh, shape.world_from_object
+
+
+def _result_flags(obj_id: int, fitness: float, mesh: trimesh.Trimesh,
+                  table_extent_m: float) -> list[str]:
+    """Warnings about one object's fit: too few observed points explained, larger than
+    the visible table (see :mod:`r2s.geometry.sanity`)."""
+    problems = (sanity.low_fitness(fitness),
+                sanity.larger_than_table(sanity.mesh_extent_m(mesh), table_extent_m))
+    return [f"object {obj_id}: {p}" for p in problems if p]
 
 
 def _png_bytes(image: np.ndarray) -> bytes:
@@ -235,6 +298,8 @@ def run(ctx: StageContext) -> dict:
     np.save(out / "support_points.npy", support.astype(np.float32))
 
     observed = {spec.id: _object_points(scene, spec.id, o, plane) for spec in scene.objects}
+    flags: list[str] = list(scene.warnings)  # probably-wrong inputs and results, one line each
+    table_extent_m = sanity.robust_extent_m(support)
     objects: list[ObjectState] = []
     posed: list[trimesh.Trimesh] = []
     rmses: list[float] = []
@@ -243,7 +308,7 @@ def run(ctx: StageContext) -> dict:
         ctx.progress(f"object {spec.id}", k / max(n, 1))
         pts, pix = observed[spec.id]
         if spec.prior_mesh is not None:
-            mesh, world_from_object, reg = _register(scene, spec, pts, plane, o)
+            mesh, world_from_object, reg = _register(scene, spec, pts, plane, o, flags)
             source, fitness, rmse, scale = "prior", reg.fitness, reg.rmse_m, reg.scale
             rmses.append(rmse)
         else:
@@ -254,6 +319,7 @@ def run(ctx: StageContext) -> dict:
             mesh_w = mesh.copy()
             mesh_w.apply_transform(world_from_object)
             fitness, rmse = surface_fit(mesh_w, pts, o.icp_inlier_m, seed=o.seed)
+        flags += _result_flags(spec.id, float(fitness), mesh, table_extent_m)
         save_mesh(mesh, out / "meshes" / f"{spec.id}.glb")
         np.save(out / "points" / f"{spec.id}.npy", pts.astype(np.float32))
         mesh_w = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
@@ -289,6 +355,8 @@ def run(ctx: StageContext) -> dict:
         "mean_icp_rmse_mm": round(1000 * float(np.mean(finite)), 3) if finite else None,
         "min_fitness": round(min(fitnesses), 4) if fitnesses else None,
         "support_inlier_fraction": round(float(plane.inliers.mean()), 4),
+        "skipped": list(scene.skipped_ids),
+        "flags": flags,
     }
 
 

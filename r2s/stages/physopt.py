@@ -1,17 +1,13 @@
 """The ``physopt`` stage: make the reconstructed scene stay at rest in simulation.
 
-Objects are processed root to leaves along the contact graph (parents fixed while a child
-is optimised). Each object's pose, COM (kept inside the shape), mass (bounded around
-volume x density) and friction (bounded to a plausible range) are optimised through the
-differentiable simulator where it is available; then a verification pass re-simulates the
-whole scene in PyBullet with the export's collision geometry, and objects that still move
-are revisited with their neighbours (more friction within bounds, then letting the engine
-settle them into the nearest rest state) until the scene is stable or the budget runs out.
-Every change is recorded per object with its reason in ``physopt/log.json``.
+Objects are optimised root to leaves along the contact graph through the differentiable
+simulator (pose, COM inside the shape, friction within bounds), then the whole scene is
+checked in PyBullet with the export's collision geometry and what still moves is repaired,
+first within the observation tolerance of where each object was seen (docs/physopt.md).
+Every change is recorded per object with its reason in ``physopt/log.json``; objects left
+beyond the tolerance are flagged.
 
-The algorithm lives in :mod:`r2s.physopt` (parameters, the differentiable per-object step,
-the PyBullet rounds); this module reads the state, calls it and writes the result.
-"""
+The algorithm lives in :mod:`r2s.physopt`; this module reads, calls it and writes."""
 
 from __future__ import annotations
 
@@ -23,7 +19,7 @@ from pydantic import Field
 
 from r2s.errors import StageError
 from r2s.geometry.convex_cache import cached_convex_decomposition
-from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexParams
+from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexMethod, ConvexParams
 from r2s.io.atomic import atomic_write_json
 from r2s.io.latest_state import latest_state_stage
 from r2s.io.manifest import Manifest
@@ -33,10 +29,12 @@ from r2s.io.state import SceneState, read_state, write_state
 from r2s.physopt.hierarchy import (descendants, lowest_points_m, order_root_to_leaves,
                                    parents_from_graph)
 from r2s.physopt.object_opt import optimise_objects
-from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, displacement_flags
+from r2s.physopt.observation_bound import (OBSERVATION_FLAG_KEY, ObservationBound,
+                                           displacement_flags, seen_poses)
 from r2s.physopt.params import initial_params, keep_previous
 from r2s.physopt.repair import depenetrate_scene, verify_and_repair, world_factory
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
+from r2s.physical.provenance import com_provenance, friction_provenance, user_entries
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.scene_model import corrected_state
 
@@ -47,7 +45,10 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
 
     source: Literal["auto", "init", "geomopt"] = Field(
         "auto", description="State to start from (auto: geomopt if it ran, else init).")
-    density_kg_m3: float = Field(600.0, gt=0, description="Nominal density for the mass prior.")
+    density_kg_m3: Optional[float] = Field(
+        None, gt=0, description="Nominal density for the mass prior (unset: by label, "
+                                "r2s/physical/density_table.py; input/objects.json's "
+                                "mass_kg or density_kg_m3 win).")
     mass_bounds: tuple[float, float] = Field(
         (0.5, 2.0), description="Mass bounds as factors of volume x density.")
     friction_init: float = Field(0.6, description="Starting per-body friction.")
@@ -56,13 +57,12 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
                                                    "result and stay fixed.")
     use_diffsim: bool = Field(True, description="Optimise each object through the torch "
                                                 "simulator before the PyBullet check.")
-    observation_tolerance_m: float = Field(
-        0.02, gt=0, description="An object that ends farther than this from its init pose "
-                                "(where it was seen) is flagged, not silently moved, m.")
-    observation_tolerance_deg: float = Field(
-        15.0, gt=0, description="... or turned more than this from its init pose, degrees.")
+    convex_method: ConvexMethod = Field(DEFAULT_CONVEX.method,
+                                        description="Convex decomposition: vhacd or coacd "
+                                                    "(same as export).")
     convex_threshold: float = Field(DEFAULT_CONVEX.threshold, gt=0,
-                                    description="CoACD threshold (same as export).")
+                                    description="CoACD threshold, convex_method=coacd only "
+                                                "(same as export).")
     max_convex_pieces: int = Field(DEFAULT_CONVEX.max_pieces, ge=1,
                                    description="Most convex pieces (same as export).")
 
@@ -77,7 +77,8 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
         src = _source(paths, options, manifest)
     except Exception:
         return []
-    return [paths.stage_dir(src), paths.contact_graph, paths.stage_dir("init")]
+    # objects.json: a user's mass_kg / density_kg_m3 / friction fixes those parameters
+    return [paths.stage_dir(src), paths.contact_graph, paths.stage_dir("init"), paths.objects]
 
 
 def run(ctx: StageContext) -> dict:
@@ -86,14 +87,14 @@ def run(ctx: StageContext) -> dict:
     # with the effects kept in the scene's model (COM, friction, table: r2s.scene_model)
     state = corrected_state(read_state(paths.stage_dir(src)), ctx.manifest.model)
     meshes = {o.id: welded(load_mesh(paths.stage_dir(src) / o.mesh)) for o in state.objects}
-    convex = ConvexParams(opt.convex_threshold, opt.max_convex_pieces)
+    convex = ConvexParams(opt.convex_threshold, opt.max_convex_pieces, opt.convex_method)
     pieces = {}
     for k, o in enumerate(state.objects):
         ctx.progress(f"object {o.id}: collision pieces", 0.1 * k / max(len(state.objects), 1))
         pieces[o.id] = cached_convex_decomposition(meshes[o.id], paths.convex_cache,
                                                    **convex.as_kwargs())
     params = initial_params(state, meshes, pieces, opt.density_kg_m3, opt.mass_bounds,
-                            opt.friction_init)
+                            opt.friction_init, user_entries(paths.root))
     parents = parents_from_graph(paths.contact_graph)
     order = order_root_to_leaves([o.id for o in state.objects], parents,
                                  lowest_points_m(state.objects, meshes))
@@ -113,9 +114,15 @@ def run(ctx: StageContext) -> dict:
     if opt.use_diffsim:
         free = [i for i in order if params[i].movable]
         params = optimise_objects(params, meshes, state, free, opt, log, ctx.progress)
+    seen = seen_poses(paths, state, ctx.manifest.model)
+    centres = {i: m.centroid for i, m in meshes.items()}
+    bound = ObservationBound(seen, centres, opt.observation_tolerance_m,
+                             opt.observation_tolerance_deg) if opt.observation_bound else None
     params, final = verify_and_repair(make_world, params, order, [o.id for o in state.objects],
-                                      opt, log, ctx.progress)
-    flags = _observation_flags(paths, state, params, meshes, opt, ctx.manifest.model)
+                                      opt, log, ctx.progress, bound)
+    flags, _ = displacement_flags(seen, {i: p.world_from_object for i, p in params.items()},
+                                  centres, opt.observation_tolerance_m,
+                                  opt.observation_tolerance_deg)
     log["observation_flags"] = {str(i): reason for i, reason in flags.items()}
     _write(ctx, paths.stage_dir(src), state, params, final, log, flags)
     ctx.progress("done", 1.0)
@@ -125,19 +132,18 @@ def run(ctx: StageContext) -> dict:
             "warnings": [f"object {i}: {reason}" for i, reason in sorted(flags.items())]}
 
 
-def _observation_flags(paths: ScenePaths, state: SceneState, params: dict, meshes: dict,
-                       opt: Options, model: dict) -> dict[int, str]:
-    """Objects the rounds left farther from their init pose than the tolerance (id -> why);
-    the init pose is where the object was seen (the source state's without init/)."""
-    seen = state
-    if (paths.stage_dir("init") / "state.json").is_file():
-        seen = corrected_state(read_state(paths.stage_dir("init")), model)
-    flags, _ = displacement_flags(
-        {o.id: o.pose for o in seen.objects},
-        {i: p.world_from_object for i, p in params.items()},
-        {i: m.centroid for i, m in meshes.items()},
-        opt.observation_tolerance_m, opt.observation_tolerance_deg)
-    return flags
+def _provenance(p, notes: list, opt) -> dict:
+    """Where the physopt mass, friction and COM came from (r2s.physical.provenance)."""
+    raised = any("friction" in n and "->" in n for n in notes)
+    mass = p.mass_provenance
+    if abs(p.mass_kg - p.nominal_mass_kg) > 1e-9 * p.nominal_mass_kg:
+        mass = {"source": "optimised", "nominal_kg": p.nominal_mass_kg, "prior": mass}
+    return {"mass": mass,
+            "friction": friction_provenance(p.friction, user=p.user_friction,
+                                            initial=opt.friction_init,
+                                            bounds=tuple(opt.friction_bounds),
+                                            raised_for_stability=raised),
+            "com": com_provenance(p.com_in_object, p.centroid_in_object)}
 
 
 def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, final: dict,
@@ -151,7 +157,9 @@ def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, fi
         data = o.model_dump()
         data.update(mesh=f"meshes/{o.id}.glb", world_from_object=p.world_from_object.tolist(),
                     mass_kg=p.mass_kg, com_in_object=[float(x) for x in p.com_in_object],
-                    friction=p.friction, physopt_drift_m=final[o.id][0],
+                    friction=p.friction,
+                    provenance=_provenance(p, log["objects"][o.id], ctx.options),
+                    physopt_drift_m=final[o.id][0],
                     physopt_drift_deg=final[o.id][1])
         if o.id in flags:
             data[OBSERVATION_FLAG_KEY] = flags[o.id]

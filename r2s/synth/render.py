@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pybullet as pb
 
+from r2s.sim.ascii_paths import ascii_safe_paths
 from r2s.sim.pybullet_bodies import quat_xyzw_from_matrix
 from r2s.synth.camera import FAR_M, NEAR_M, depth_from_gl_buffer, gl_projection_matrix, \
     gl_view_matrix
@@ -50,13 +51,13 @@ class Frame:
 
 
 def _add_visual(client: int, visual: Visual) -> int:
-    shape = pb.createVisualShape(pb.GEOM_MESH, fileName=str(visual.obj_file),
-                                 physicsClientId=client)
+    with ascii_safe_paths([visual.obj_file, visual.texture_file]) as (obj_file, texture_file):
+        shape = pb.createVisualShape(pb.GEOM_MESH, fileName=obj_file, physicsClientId=client)
+        texture = pb.loadTexture(texture_file, physicsClientId=client)
     pose = np.asarray(visual.world_from_object, dtype=float)
     body = pb.createMultiBody(0.0, -1, shape, basePosition=list(pose[:3, 3]),
                               baseOrientation=quat_xyzw_from_matrix(pose[:3, :3]),
                               physicsClientId=client)
-    texture = pb.loadTexture(str(visual.texture_file), physicsClientId=client)
     pb.changeVisualShape(body, -1, textureUniqueId=texture, rgbaColor=[1, 1, 1, 1],
                          specularColor=[0.3, 0.3, 0.3], physicsClientId=client)
     return body

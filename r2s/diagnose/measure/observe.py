@@ -32,6 +32,7 @@ from r2s.geometry.mass_properties import mass_properties
 from r2s.geometry.plane import fit_plane_ransac
 from r2s.geometry.raycast import raycast_view
 from r2s.io.input_scene import InputScene
+from r2s.physical.density_table import density_for_label
 
 
 @dataclass(frozen=True)
@@ -193,18 +194,21 @@ def _plane_depth(K: np.ndarray, world_from_camera: np.ndarray, point: np.ndarray
 
 def world_spec(objects: list[ObjectModel], support_point: np.ndarray,
                support_normal: np.ndarray, support_friction: float, cache_dir: Optional[Path],
-               density_kg_m3: float = 600.0, default_friction: float = 0.8,
+               density_kg_m3: Optional[float] = None, default_friction: float = 0.8,
                convex: ConvexParams = DEFAULT_CONVEX) -> WorldSpec:
     """Rigid bodies for PyBullet (convex pieces written to a temporary folder).
 
     Mass, COM, friction and collision pieces as the export stage makes them (pass its
-    options): volume x density, the shape's centroid, ``default_friction``, CoACD pieces.
+    options): volume x density (None: the label's density, r2s.physical.density_table),
+    the shape's centroid, ``default_friction``, CoACD pieces.
     """
     tmp = tempfile.TemporaryDirectory(prefix="r2s-diagnose-")
     bodies = []
     for o in objects:
         pieces = cached_convex_decomposition(o.mesh, cache_dir, **convex.as_kwargs())
-        props = mass_properties(o.mesh, pieces, mass_kg=o.mass_kg, density_kg_m3=density_kg_m3)
+        rho = (density_kg_m3 if density_kg_m3 is not None
+               else density_for_label(o.label).density_kg_m3)
+        props = mass_properties(o.mesh, pieces, mass_kg=o.mass_kg, density_kg_m3=rho)
         com = props.com_in_object if o.com_in_object is None else np.asarray(o.com_in_object)
         files = write_pieces(pieces, Path(tmp.name), str(o.id))
         ext = o.mesh.bounds[1] - o.mesh.bounds[0]

@@ -1,0 +1,122 @@
+"""Space the camera saw through, for carving a completed shape.
+
+A point of a completed object that projects to a pixel with a valid depth reading and lies
+in front of that reading by more than a margin is space the camera looked *past* (onto the
+table, the wall, an object behind, or the object's own far side, e.g. the inner walls
+behind an L-shaped block's notch): it is free and may not be material. The exception is
+the mask's uncertain rim: pixels within ``band_px`` outside the object's kept pixels and
+its own outermost ``rim_px`` ring, where mixed readings and mask errors put the reading
+on the wrong surface. A sensor leaves holes along depth edges; a hole pixel within
+``hole_fill_px`` of valid readings takes the farthest of them (the far side of the edge is
+what the camera saw past), so that a completed shape does not spill through the hole ring
+around an object. Larger holes and points outside the image or behind the camera are
+unknown: hidden parts may go there, as they may behind nearer
+objects (the reading is nearer than the point) and below the visible surface along the
+ray.
+
+The margin grows with depth like the axial noise of structured-light and stereo sensors:
+``margin_m + margin_quadratic_m * (z / 1 m)^2``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from r2s.geometry.camera import project
+
+CARVE_MARGIN_M = 0.006
+CARVE_MARGIN_QUADRATIC_M = 0.006
+OWN_BAND_PX = 2
+OWN_RIM_PX = 1
+HOLE_FILL_PX = 2
+
+
+@dataclass(frozen=True)
+class CarveView:
+    """One depth view and the pixels that are the object's own.
+
+    K : (3, 3); world_from_camera : (4, 4) OpenCV camera; depth_m : (H, W) metres along
+    the camera z axis, NaN / <= 0 = no reading; exempt : (H, W) bool, the mask's uncertain
+    rim, where nothing is carved; own : (H, W) bool, the kept pixels (what hides a point
+    from the camera there is the object itself); margin_m, margin_quadratic_m : see the
+    module docstring.
+    """
+
+    K: np.ndarray
+    world_from_camera: np.ndarray
+    depth_m: np.ndarray
+    exempt: np.ndarray
+    own: np.ndarray
+    margin_m: float = CARVE_MARGIN_M
+    margin_quadratic_m: float = CARVE_MARGIN_QUADRATIC_M
+
+
+def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray,
+               own_pixels: np.ndarray, band_px: int = OWN_BAND_PX, rim_px: int = OWN_RIM_PX,
+               hole_fill_px: int = HOLE_FILL_PX, margin_m: float = CARVE_MARGIN_M,
+               margin_quadratic_m: float = CARVE_MARGIN_QUADRATIC_M) -> CarveView:
+    """A :class:`CarveView` for an object whose kept observations are ``own_pixels``
+    ((N, 2) int (row, col)): its rim (``band_px`` outside them, ``rim_px`` inside) is
+    exempt from carving; holes are filled as the module docstring says."""
+    depth = fill_edge_holes(np.asarray(depth_m, dtype=np.float64), hole_fill_px)
+    own = np.zeros(depth.shape, dtype=bool)
+    pix = np.asarray(own_pixels, dtype=np.int64).reshape(-1, 2)
+    own[pix[:, 0], pix[:, 1]] = True
+    grown = ndimage.binary_dilation(own, iterations=int(band_px)) if band_px > 0 else own
+    inner = ndimage.binary_erosion(own, iterations=int(rim_px)) if rim_px > 0 else own
+    return CarveView(K=np.asarray(K, dtype=np.float64),
+                     world_from_camera=np.asarray(world_from_camera, dtype=np.float64),
+                     depth_m=depth, exempt=grown & ~inner, own=own, margin_m=float(margin_m),
+                     margin_quadratic_m=float(margin_quadratic_m))
+
+
+def fill_edge_holes(depth_m: np.ndarray, radius_px: int) -> np.ndarray:
+    """(H, W) ``depth_m`` with each hole pixel (NaN / <= 0) within ``radius_px`` (square
+    window) of valid readings set to the largest of them."""
+    depth = np.asarray(depth_m, dtype=np.float64)
+    valid = np.isfinite(depth) & (depth > 0)
+    if radius_px <= 0 or valid.all():
+        return depth
+    far = ndimage.maximum_filter(np.where(valid, depth, -np.inf), size=2 * radius_px + 1)
+    out = depth.copy()
+    fill = ~valid & np.isfinite(far)
+    out[fill] = far[fill]
+    return out
+
+
+def _lookup(view: CarveView, points_world: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(in_image (N,) bool, row, col (N,) int (0 outside), z (N,) camera depth, d (N,)
+    the reading at the pixel) of world points (N, 3)."""
+    pts = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+    uv, z = project(pts, view.K, view.world_from_camera)
+    height, width = view.depth_m.shape
+    ok = np.all(np.isfinite(uv), axis=1) & (z > 0)
+    col = np.rint(np.where(ok, uv[:, 0], -1)).astype(np.int64)
+    row = np.rint(np.where(ok, uv[:, 1], -1)).astype(np.int64)
+    ok &= (row >= 0) & (row < height) & (col >= 0) & (col < width)
+    row, col = np.where(ok, row, 0), np.where(ok, col, 0)
+    return ok, row, col, z, view.depth_m[row, col]
+
+
+def hidden_by_other(view: CarveView, points_world: np.ndarray) -> np.ndarray:
+    """(N,) bool: world points (N, 3) in the image that the camera could not see because
+    something other than the object is in front of them (a valid reading nearer by more
+    than the margin at a pixel that is not one of the object's kept pixels)."""
+    ok, row, col, z, d = _lookup(view, points_world)
+    valid = ok & np.isfinite(d) & (d > 0) & ~view.own[row, col]
+    margin = view.margin_m + view.margin_quadratic_m * np.square(np.where(valid, d, 0.0))
+    with np.errstate(invalid="ignore"):
+        return valid & (d < z - margin)
+
+
+def seen_free(view: CarveView, points_world: np.ndarray) -> np.ndarray:
+    """(N,) bool: which world points (N, 3) the camera saw past (free space)."""
+    ok, row, col, z, d = _lookup(view, points_world)
+    valid = ok & np.isfinite(d) & (d > 0) & ~view.exempt[row, col]
+    margin = view.margin_m + view.margin_quadratic_m * np.square(np.where(valid, d, 0.0))
+    with np.errstate(invalid="ignore"):
+        return valid & (z < d - margin)

@@ -1,0 +1,92 @@
+"""Which of an instance mask's depth pixels are really the object's, before completing it.
+
+A segmenter's mask holds pixels that are not the object's: it bleeds onto the table, onto
+a neighbour in front of or behind the object, and mixed ("flying") depth readings sit at
+its depth edges. Completion turns every kept point into material, so a few foreign points
+stretch the footprint far past the object. Two tests, on the mask's pixels:
+
+- *support band*: points within ``plane_band_m`` of the support plane are the table (the
+  object's own base is restored by the extrusion down to the support); skipped when too
+  few points would remain (a flat object lying on the table);
+- *surface continuity*: mask pixels are linked to their 8 image neighbours when their
+  depths differ by less than ``max(jump_min_m, jump_fraction * z)`` (a surface seen even
+  at a grazing angle changes depth smoothly from pixel to pixel; bleed onto something
+  nearer or farther sits across a depth jump). Linked regions smaller than
+  ``min_region_fraction`` of the largest are dropped (the largest region and any region
+  nearly as large, e.g. an object cut in two by a thin occluder, are kept).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse.csgraph import connected_components
+
+from r2s.geometry.plane import signed_distance
+
+PLANE_BAND_M = 0.006
+JUMP_MIN_M = 0.008
+JUMP_FRACTION = 0.015
+MIN_REGION_FRACTION = 0.25
+MIN_KEEP_FRACTION = 0.3
+
+
+def surface_regions(pixels: np.ndarray, depth_m: np.ndarray, jump_min_m: float = JUMP_MIN_M,
+                    jump_fraction: float = JUMP_FRACTION) -> np.ndarray:
+    """(N,) int region label of each pixel: 8-connected pixels without a depth jump.
+
+    pixels : (N, 2) int ``(row, col)``, distinct; depth_m : (N,) their depths (metres).
+    """
+    pix = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
+    z = np.asarray(depth_m, dtype=np.float64).reshape(-1)
+    n = len(pix)
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    r0, c0 = pix.min(axis=0)
+    h, w = pix.max(axis=0) - (r0, c0) + 1
+    index = np.full((h + 2, w + 2), -1, dtype=np.int64)
+    rr, cc = pix[:, 0] - r0 + 1, pix[:, 1] - c0 + 1
+    index[rr, cc] = np.arange(n)
+    src, dst = [], []
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        other = index[rr + dr, cc + dc]
+        ok = other >= 0
+        a, b = np.flatnonzero(ok), other[ok]
+        near = np.abs(z[a] - z[b]) < np.maximum(jump_min_m, jump_fraction * np.minimum(z[a], z[b]))
+        src.append(a[near])
+        dst.append(b[near])
+    src, dst = np.concatenate(src), np.concatenate(dst)
+    graph = sparse.coo_matrix((np.ones(len(src), dtype=np.int8), (src, dst)), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    return labels.astype(np.int64)
+
+
+def object_point_mask(points_world: np.ndarray, pixels: np.ndarray, depth_m: np.ndarray,
+                      plane_point: np.ndarray, plane_normal: np.ndarray,
+                      plane_band_m: float = PLANE_BAND_M,
+                      min_region_fraction: float = MIN_REGION_FRACTION,
+                      min_keep_fraction: float = MIN_KEEP_FRACTION) -> np.ndarray:
+    """(N,) bool: which of an instance's observed points belong to the object.
+
+    points_world : (N, 3) back-projected mask pixels; pixels : (N, 2) their (row, col);
+    depth_m : (N,) their observed depths; plane_point, plane_normal : the support plane
+    (normal up). At least ``min_keep_fraction`` of the points (and 10) are always kept:
+    when a test would drop more it is skipped.
+    """
+    pts = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+    n = len(pts)
+    keep = np.all(np.isfinite(pts), axis=1)
+    floor = max(10, int(np.ceil(min_keep_fraction * n)))
+    if n == 0:
+        return keep
+    above = signed_distance(pts, plane_point, plane_normal) > plane_band_m
+    if np.count_nonzero(keep & above) >= floor:
+        keep &= above
+    idx = np.flatnonzero(keep)
+    labels = surface_regions(np.asarray(pixels)[idx], np.asarray(depth_m)[idx])
+    sizes = np.bincount(labels)
+    big = sizes >= min_region_fraction * sizes.max()
+    region_keep = big[labels]
+    if np.count_nonzero(region_keep) >= floor:
+        keep[idx[~region_keep]] = False
+    return keep

@@ -1,0 +1,1 @@
+"""Physical parameters of objects: densities by label, and where each value came from."""
