@@ -14,7 +14,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from r2s.diagnose.blocks import blocks_of, interaction_block, total_sse
+from r2s.diagnose.stats.blocks import blocks_of, interaction_block, total_sse
 from r2s.diagnose.data import InteractionData, PhysicsModel, Residuals
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
 from r2s.io.state import SceneState
