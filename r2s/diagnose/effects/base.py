@@ -163,3 +163,28 @@ class Effect:
     def describe(self, params: dict) -> str:
         """One line for the report."""
         return f"{self.name} {params}"
+
+
+class PerObjectEffect(Effect):
+    """An effect with one entry per object: ``params = {"objects": {"<id>": entry}}``.
+
+    Applying it sets each listed object's value with :meth:`apply_entry`; composing keeps
+    the old entries and lets the new ones replace those of the same objects.
+    """
+
+    def apply_entry(self, obj, entry: dict) -> None:
+        """Set the effect's value on one state object from its entry (in place)."""
+        raise NotImplementedError
+
+    def apply_to_state(self, state: SceneState, params: dict) -> SceneState:
+        new = state.model_copy(deep=True)
+        for obj in new.objects:
+            entry = params.get("objects", {}).get(str(obj.id))
+            if entry is not None:
+                self.apply_entry(obj, entry)
+        return new
+
+    def compose(self, old: dict, new: dict) -> dict:
+        objs = dict(old.get("objects", {}))
+        objs.update(new.get("objects", {}))
+        return {"objects": objs}

@@ -17,9 +17,8 @@ from scipy.optimize import minimize_scalar
 
 from r2s.diagnose.stats.blocks import blocks_of, physics_block, total_sse
 from r2s.diagnose.data import PhysicsData, Residuals
-from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
+from r2s.diagnose.effects.base import EffectFit, PerObjectEffect, make_fit, not_identifiable
 from r2s.diagnose.effects._wrench import balancing_com_shift, toppling_direction
-from r2s.io.state import SceneState
 
 MAX_SHIFT_FRACTION = 0.6
 """A COM further than this fraction of the object's radius from its centroid is not a
@@ -39,7 +38,7 @@ geometry is off, not the density, and no COM is fitted."""
 """Only the most-moving candidates are tried (each costs a line search of rollouts)."""
 
 
-class ComOffset(Effect):
+class ComOffset(PerObjectEffect):
     name = "com_offset"
     n_params = 2
     level = "state"
@@ -97,18 +96,8 @@ class ComOffset(Effect):
         return make_fit(self.name, residuals, after, params, self.n_params * len(kept), size,
                         "m", note=self.describe(params))
 
-    def apply_to_state(self, state: SceneState, params: dict) -> SceneState:
-        new = state.model_copy(deep=True)
-        for obj in new.objects:
-            entry = params.get("objects", {}).get(str(obj.id))
-            if entry is not None:
-                obj.com_in_object = [float(x) for x in entry["com_in_object_m"]]
-        return new
-
-    def compose(self, old: dict, new: dict) -> dict:
-        objs = dict(old.get("objects", {}))
-        objs.update(new.get("objects", {}))
-        return {"objects": objs}
+    def apply_entry(self, obj, entry: dict) -> None:
+        obj.com_in_object = [float(x) for x in entry["com_in_object_m"]]
 
     def describe(self, params: dict) -> str:
         parts = [f"object {i}: COM {np.linalg.norm(e['shift_world_m']) * 100:.1f} cm off"
