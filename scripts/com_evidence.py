@@ -22,7 +22,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from r2s.diagnose.measure.observe import physics_residual, world_spec  # noqa: E402
-from r2s.diagnose.scene import export_options, load_objects  # noqa: E402
+from r2s.diagnose.measure.scene_dir import export_options, load_objects  # noqa: E402
 from r2s.io.input_scene import load_input  # noqa: E402
 from r2s.io.mesh_io import load_mesh  # noqa: E402
 from r2s.io.paths import ScenePaths  # noqa: E402

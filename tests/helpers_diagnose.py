@@ -49,7 +49,7 @@ def scene_objects(with_ball: bool = True) -> list[tuple[int, trimesh.Trimesh, np
 
 def render(depth_scale: float = 1.0, camera_rotation_deg: float = 0.0,
            table_tilt_deg: float = 0.0, with_ball: bool = True, noise_m: float = 0.0005,
-           seed: int = 0) -> dict:
+           seed: int = 0, depth_row_error_m: float = 0.0, lens_k1: float = 0.0) -> dict:
     """The test scene as arrays: depth (H, W), masks, K, declared and true camera poses,
     the objects and the tilt (4, 4) applied to table and objects."""
     rng = np.random.default_rng(seed)
@@ -67,6 +67,16 @@ def render(depth_scale: float = 1.0, camera_rotation_deg: float = 0.0,
     masks = np.where(index >= 0, ids[np.clip(index, 0, len(objects))], 0).astype(np.uint8)
     depth = depth + rng.normal(0.0, noise_m, depth.shape).astype(np.float32)
     depth = (depth * depth_scale).astype(np.float32)
+    if depth_row_error_m:
+        # an error outside the catalogue: depth reads long by a parabola in the image row
+        rows = (np.arange(HEIGHT, dtype=np.float64) - (HEIGHT - 1) / 2) / ((HEIGHT - 1) / 2)
+        depth = (depth + depth_row_error_m * rows[:, None] ** 2).astype(np.float32)
+    if lens_k1:
+        from r2s.geometry.lens import distort_image
+
+        depth = distort_image(np.where(depth > 0, depth, np.nan), K, lens_k1).astype(np.float32)
+        depth = np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)
+        masks = distort_image(masks, K, lens_k1, fill=0)
     declared = world_from_camera.copy()
     if camera_rotation_deg:
         declared[:3, :3] = Rotation.from_rotvec(
@@ -87,9 +97,17 @@ def input_scene(**kwargs) -> InputScene:
 
 def write_scene(root: Path, depth_scale: float = 1.0, camera_rotation_deg: float = 0.0,
                 table_tilt_deg: float = 0.0, with_ball: bool = True, noise_m: float = 0.0005,
-                seed: int = 0, prior_pose_noise_m: float = 0.004) -> Path:
-    """Write ``root/input`` and ``root/gt`` of the test scene; returns ``root``."""
-    r = render(depth_scale, camera_rotation_deg, table_tilt_deg, with_ball, noise_m, seed)
+                seed: int = 0, prior_pose_noise_m: float = 0.004,
+                prior_scales: Optional[dict] = None, depth_row_error_m: float = 0.0,
+                lens_k1: float = 0.0) -> Path:
+    """Write ``root/input`` and ``root/gt`` of the test scene; returns ``root``.
+
+    ``prior_scales``: id -> factor by which that object's prior is too large (a prior's
+    size error); ``depth_row_error_m``: an uncatalogued depth error, the depth reads long
+    by this times the squared row offset from the centre (-1..1); ``lens_k1``: radial
+    lens distortion of the recorded depth and masks."""
+    r = render(depth_scale, camera_rotation_deg, table_tilt_deg, with_ball, noise_m, seed,
+               depth_row_error_m, lens_k1)
     rng = np.random.default_rng(seed + 1)
     objects, tilt, masks, K = r["objects"], r["tilt"], r["masks"], r["K"]
     depth, declared = r["depth"], r["declared"]
@@ -106,7 +124,8 @@ def write_scene(root: Path, depth_scale: float = 1.0, camera_rotation_deg: float
          "depth_unit_m": 0.001}))
     entries = []
     for i, mesh, pose in objects:
-        save_mesh(mesh, inp / "priors" / f"{i}.glb")
+        factor = (prior_scales or {}).get(i, 1.0)
+        save_mesh(mesh.copy().apply_scale(factor), inp / "priors" / f"{i}.glb")
         guess = tilt @ pose
         guess = guess.copy()
         guess[:3, 3] += rng.normal(0.0, prior_pose_noise_m, 3)
@@ -125,7 +144,9 @@ def write_scene(root: Path, depth_scale: float = 1.0, camera_rotation_deg: float
     normal = tilt[:3, :3] @ np.array([0.0, 0.0, 1.0])
     injected = {k: v for k, v in (("depth_scale", depth_scale),
                                   ("camera_rotation_deg", camera_rotation_deg),
-                                  ("table_tilt_deg", table_tilt_deg))
+                                  ("table_tilt_deg", table_tilt_deg),
+                                  ("depth_row_error_m", depth_row_error_m),
+                                  ("lens_k1", lens_k1))
                 if v != (1.0 if k == "depth_scale" else 0.0)}
     (gt / "scene.json").write_text(json.dumps(
         {"gravity": [0, 0, -9.81], "objects": gt_objects,

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from r2s.diagnose.blocks import blocks_of, tilt_vector, total_n, total_sse
+from r2s.diagnose.stats.blocks import blocks_of, tilt_vector, total_n, total_sse
 from r2s.diagnose.data import (InteractionData, Motion, PhysicsData, PhysicsModel, PhysObject,
                                RegistrationData, Residuals, ScaleObs, SupportData)
 from r2s.diagnose.effects import all_effects, get_effect
-from r2s.diagnose.ranking import diagnose
-from r2s.diagnose.wrench import balancing_com_shift, nearest_in_hull_2d, toppling_direction
+from r2s.diagnose.stats.ranking import diagnose
+from r2s.diagnose.effects._wrench import balancing_com_shift, nearest_in_hull_2d, toppling_direction
 
 G = np.array([0.0, 0.0, -9.81])
 
@@ -115,7 +115,7 @@ def test_depth_bias_compose_equals_applying_twice():
     eff = get_effect("depth_scale")
     old, new = {"scale": 1.02, "offset_m": 0.004}, {"scale": 0.99, "offset_m": -0.002}
     z = np.array([0.5, 0.8, 1.3])
-    from r2s.diagnose.depth_model import correct_depth
+    from r2s.diagnose.effects._depth_model import correct_depth
 
     twice = correct_depth(correct_depth(z, 1.02, 0.004), 0.99, -0.002)
     comp = eff.compose(old, new)
@@ -155,16 +155,30 @@ def test_physics_decides_between_camera_rotation_and_table_tilt():
     phys = PhysicsData(base=base, objects=objs, motion=sim(base), simulate=sim)
     d = diagnose(Residuals(support=sup, physics=phys), all_effects())
     assert d.chosen[0].effect == "camera_rotation"
-    # at rest either way: the two are tied, and the declared camera is kept
+    # at rest either way: the two are tied, and the prior (a camera error 4 times in 5)
+    # names the camera, with the table tilt reported as the alternative
     still = PhysicsData(base=base, objects=objs,
                         motion={i: Motion(np.zeros(3), np.zeros(3)) for i in objs},
                         simulate=lambda m: {i: Motion(np.zeros(3), np.zeros(3)) for i in objs})
     d = diagnose(Residuals(support=sup, physics=still), all_effects())
-    assert d.chosen[0].effect == "table_tilt"
+    assert d.chosen[0].effect == "camera_rotation"
     assert set(d.rounds[0].ties) == {"table_tilt", "camera_rotation"}
     fits = {f.effect: f for f in d.rounds[0].fits}
     assert fits["camera_rotation"].delta_bic == pytest.approx(fits["table_tilt"].delta_bic)
-    assert fits["camera_rotation"].score == pytest.approx(fits["table_tilt"].score + 20.0)
+    assert fits["table_tilt"].score == pytest.approx(fits["camera_rotation"].score
+                                                     + 2.0 * np.log(4.0))
+
+    # resting under the declared gravity, sliding under gravity normal to the table: the
+    # physics outweighs the prior and names the tilted table
+    def slides_when_levelled(model: PhysicsModel) -> dict:
+        g = np.asarray(model.gravity)
+        off = g - G
+        return {i: Motion(0.5 * off, np.zeros(3)) for i in (1, 2, 3)}
+
+    rests = PhysicsData(base=base, objects=objs, motion=slides_when_levelled(base),
+                        simulate=slides_when_levelled)
+    d = diagnose(Residuals(support=sup, physics=rests), all_effects())
+    assert d.chosen[0].effect == "table_tilt"
     assert tilt_g[2] < 0
 
 
@@ -297,9 +311,10 @@ def test_two_effects_are_found_one_after_the_other():
     res = Residuals(registration=_registration(0.97), support=_support(2.0))
     d = diagnose(res, all_effects(), max_effects=2)
     found = {c.effect: c for c in d.chosen}
-    assert len(found) == 2 and "depth_scale" in found and "table_tilt" in found
+    # without physics the tilt goes to the camera, by the prior
+    assert len(found) == 2 and "depth_scale" in found and "camera_rotation" in found
     assert found["depth_scale"].size == pytest.approx(0.97, abs=0.005)
-    assert found["table_tilt"].size == pytest.approx(2.0, abs=0.2)
+    assert found["camera_rotation"].size == pytest.approx(2.0, abs=0.2)
     assert d.sse_after < 0.05 * d.sse_before
 
 

@@ -24,7 +24,7 @@ from r2s.diagnose.measure.observe import (ObjectModel, fit_quality, interaction_
                                           physics_residual, support_residual, world_spec)
 from r2s.diagnose.measure.physics import support_contacts
 from r2s.scene_model import corrected_input, corrected_state, with_effect
-from r2s.diagnose.ranking import diagnose
+from r2s.diagnose.stats.ranking import diagnose
 from r2s.diagnose.effects import all_effects
 from r2s.io.state import ObjectState, SceneState, SupportPlane
 

@@ -1,6 +1,8 @@
 """The ``diagnose`` stage end to end on small hand-made scenes (init, then diagnose).
 
-Clean scene: no effect, nothing outside diagnose/ changes. Depth scaled by 1.03: the depth
+Clean scene: no effect, nothing outside diagnose/ changes. Depth scaled by 1.04 (a 3 % scale
+on these 4 objects explains 12.0 of SSE, just under the noise bar of 12.25 that keeps false
+alarms rare: docs/diagnose.md section 4): the depth
 scale is named, fitted within 0.005, the rerun copy's pose error drops, and ``apply``
 records it in the manifest. Camera declared 2.5 deg off: the camera rotation is named
 (a ball on the table rolls under the declared gravity), fitted within 0.2 deg.
@@ -50,14 +52,14 @@ def test_clean_scene_has_no_effect_and_is_left_alone(tmp_path):
 
 
 def test_depth_scale_is_found_fitted_applied_and_reduces_the_error(tmp_path):
-    scene = _prepare(tmp_path, depth_scale=1.03)
+    scene = _prepare(tmp_path, depth_scale=1.04)
     from r2s.runner.pipeline import build_options
 
     spec = get_stage("diagnose")
     run_stage(spec, scene, build_options(spec, None, {"apply": "true"}))
     rep = _report(scene)
     assert rep["decision"] == ["depth_scale"]
-    assert rep["chosen"][0]["params"]["scale"] == pytest.approx(1.03, abs=0.005)
+    assert rep["chosen"][0]["params"]["scale"] == pytest.approx(1.04, abs=0.005)
     assert rep["rerun"]["stages"] == ["init"]
     gt = rep["gt_errors"]
     # median over objects: init may misregister one object whatever the depth says
@@ -65,7 +67,7 @@ def test_depth_scale_is_found_fitted_applied_and_reduces_the_error(tmp_path):
         0.3 * gt["before"]["state_centroid_error_median_mm"]
     assert rep["residuals"]["after"]["registration"] < 0.2 * rep["residuals"]["before"]["registration"]
     model = load_manifest(scene / "manifest.json").model
-    assert model["effects"]["depth_scale"]["scale"] == pytest.approx(1.03, abs=0.005)
+    assert model["effects"]["depth_scale"]["scale"] == pytest.approx(1.04, abs=0.005)
 
 
 def test_camera_rotation_is_told_from_table_tilt_by_the_rolling_ball(tmp_path):

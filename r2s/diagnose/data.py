@@ -12,6 +12,7 @@ gravity direction.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Callable, Optional
 
 import numpy as np
@@ -56,6 +57,12 @@ class RegistrationData:
     objects: tuple[ScaleObs, ...]
     scale_sigma: float = 0.01
     min_fitness: float = 0.5
+    scale_floor: Optional[float] = None
+    """The floor ``scale_sigma`` was measured against (None: ``scale_sigma`` is the floor)."""
+    noise_dof: Optional[float] = None
+    """Degrees of freedom of ``scale_sigma`` as an estimate (None: a known level)."""
+    noise_prior: tuple = (0.02, 4.0)
+    """(sigma, pseudo-observations) of the prior spread pooled into ``scale_sigma``."""
 
     def used(self) -> tuple[ScaleObs, ...]:
         """Objects whose registration is good enough to say something about scale."""
@@ -192,6 +199,8 @@ class PhysicsData:
     motion: dict
     simulate: Optional[Simulator] = None
     horizon_s: float = 1.0
+    stage: Optional[str] = None
+    """The stage whose state was rolled out (None: not from a scene)."""
     sigma_translation_m: float = 0.015
     sigma_rotation_rad: float = float(np.radians(5.0))
     cap: float = 4.0
@@ -260,6 +269,38 @@ class DepthMapData:
     on_object: np.ndarray
 
 
+# ---- table shape: the table points' distance to one plane (r2s.diagnose.stats.table_shape) -----
+
+@dataclass(frozen=True)
+class TableShapeData:
+    """Table pixels back-projected into the camera frame, for the table's shape.
+
+    points_camera : (N, 3) table points (a seeded subsample of every table pixel with a
+        reading), camera frame, as observed (the model's corrections already applied).
+    grey : (N,) grey level 0..1 of each point's pixel (None: no image).
+    K : (3, 3) intrinsics; width, height : image size, pixels.
+    sigma_m : noise level of one tile's mean distance to the plane (table flatness plus
+        the depth noise that does not average out over a tile).
+    """
+
+    points_camera: np.ndarray
+    K: np.ndarray
+    width: int
+    height: int
+    grey: Optional[np.ndarray] = None
+    sigma_m: float = 0.001
+
+    @cached_property
+    def _tiles(self):
+        from r2s.diagnose.stats.table_shape import table_tiles
+
+        return table_tiles(self.points_camera, self.K, self.width, self.height, self.grey)
+
+    def tiles(self):
+        """:class:`r2s.diagnose.stats.table_shape.TableTiles` of the points (computed once)."""
+        return self._tiles
+
+
 # ---- everything ---------------------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -272,3 +313,4 @@ class Residuals:
     interaction: Optional[InteractionData] = None
     depth_map: Optional[DepthMapData] = None
     notes: tuple = ()
+    table_shape: Optional[TableShapeData] = None

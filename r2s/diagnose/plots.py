@@ -13,7 +13,7 @@ from typing import Optional
 import numpy as np
 
 from r2s.diagnose.data import Residuals
-from r2s.diagnose.structure import sse_by_block
+from r2s.diagnose.stats.summary import sse_by_block
 
 
 def _png(fig) -> bytes:
@@ -120,6 +120,50 @@ def residual_figure(before: Residuals, predicted: Optional[Residuals],
     _scales(axes[1, 1], runs)
     _motion(axes[1, 2], runs)
     fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    data = _png(fig)
+    plt.close(fig)
+    return data
+
+
+def structure_figure(finding, width: int, height: int, title: str) -> bytes:
+    """PNG bytes of a structured residual (:class:`r2s.diagnose.stats.structure_test.
+    StructureFinding`): the table's tile residuals where they lie in the image, and
+    against the generic feature that explains most of them."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from r2s.diagnose.stats.structure_test import FEATURE_TEXT
+
+    tiles = np.asarray(finding.tiles_mm, dtype=float)
+    centres = np.asarray(finding.centres_px, dtype=float).reshape(-1, 2)
+    vmax = float(max(0.5, np.max(np.abs(tiles)) if len(tiles) else 1.0))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.6))
+    ax = axes[0]
+    sc = ax.scatter(centres[:, 0], centres[:, 1], c=tiles, cmap="coolwarm", vmin=-vmax,
+                    vmax=vmax, s=260, marker="s")
+    ax.set_xlim(0, width)
+    ax.set_ylim(height, 0)
+    ax.set_aspect("equal")
+    ax.set_title("table: mean distance to its plane per image tile (mm)", fontsize=9)
+    fig.colorbar(sc, ax=ax, fraction=0.035, label="towards the camera (mm)")
+    ax = axes[1]
+    name = finding.best_feature
+    if name is not None and name in finding.feature_values:
+        x = np.asarray(finding.feature_values[name], dtype=float)
+        ax.plot(x, tiles, "o", ms=4)
+        order = np.argsort(x)
+        if len(x) >= 4 and np.ptp(x) > 0:
+            coef = np.polyfit(x, tiles, 2)
+            ax.plot(x[order], np.polyval(coef, x[order]), "-", lw=1.5)
+        ax.set_xlabel(FEATURE_TEXT[name])
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set_ylabel("tile residual (mm)")
+    ax.set_title(f"against {FEATURE_TEXT.get(name, '-')}: R^2 {finding.best_r2:.2f}",
+                 fontsize=9)
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     data = _png(fig)
     plt.close(fig)

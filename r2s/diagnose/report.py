@@ -1,6 +1,11 @@
 """``diagnose/report.json`` and ``diagnose/report.md``: what was found and what it changed.
 
-report.json keys: ``decision`` (the chosen effects, or ``[]`` for "no effect"),
+report.json keys: ``decision`` (the effects kept, or ``[]`` for "no effect"),
+``steps`` (one per loop step: the effect tried, the blocks it claimed, their SSE before,
+predicted and measured after its rerun, the total residual and headline gt errors before
+and after, kept or reverted and why), ``unexplained`` (a structured residual no kept
+effect explains: its pattern; null when none), ``structure_test`` (the final test),
+``gravity`` (camera or table: the choice, the alternative, the prior),
 ``chosen`` and ``ranking`` (every effect's fit per round: delta_BIC, explained SSE, k,
 size, parameters), ``ties``, ``not_identifiable`` (effect -> why), ``residuals`` (per block
 SSE: ``before``, ``predicted`` with the effect, ``after`` measured on the rerun copy),
@@ -10,41 +15,76 @@ without gt/), ``rerun`` (stages), ``applied`` and ``model`` (the scene's model a
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Optional
 
+from r2s.diagnose.stats.blocks import blocks_of, total_n, total_sse
+from r2s.diagnose.data import Residuals
 from r2s.diagnose.effects import all_effects
-from r2s.diagnose.ranking import Diagnosis
-from r2s.diagnose.structure import sse_by_block, structure
+from r2s.diagnose.stats.summary import sse_by_block, structure
 
 
-def build_report(scene: str, diag: Diagnosis, physics_stage: Optional[str],
-                 measured_after, rerun_stages: list[str], gt_before: Optional[dict],
-                 gt_after: Optional[dict], applied: bool, model: dict,
-                 notes: list[str]) -> dict[str, Any]:
-    """The report.json content (``measured_after``: residuals of the rerun copy or None)."""
-    last = diag.rounds[0] if diag.rounds else None
-    not_ident = {f.effect: f.note for f in (last.fits if last else ()) if not f.identifiable}
+@dataclass(frozen=True)
+class ReportInput:
+    """What the diagnose loop found, for :func:`build_report` (plain data).
+
+    rounds : the ranking of every step (:class:`r2s.diagnose.stats.ranking.Round`); kept : the
+    effects kept (fits); steps : one summary dict per step; before / predicted / after :
+    residuals before, as the last kept fit predicts them, measured after the last kept
+    rerun; structure_final / unexplained : summaries of the final structure test.
+    """
+
+    scene: str
+    rounds: tuple
+    kept: tuple
+    steps: tuple
+    before: Residuals
+    predicted: Optional[Residuals]
+    after: Optional[Residuals]
+    physics_stage: Optional[str]
+    stages: tuple
+    gt_before: Optional[dict]
+    gt_after: Optional[dict]
+    applied: bool
+    model: dict
+    notes: tuple
+    structure_final: Optional[dict] = None
+    unexplained: Optional[dict] = None
+    gravity: Optional[dict] = None
+
+
+def build_report(r: ReportInput) -> dict[str, Any]:
+    """The report.json content."""
+    first = r.rounds[0] if r.rounds else None
+    not_ident = {f.effect: f.note for f in (first.fits if first else ()) if not f.identifiable}
+    before_total = total_sse(blocks_of(r.before))
     return {
-        "format": "r2s-diagnose", "version": 1, "scene": scene,
-        "decision": [c.effect for c in diag.chosen],
-        "chosen": [c.summary() for c in diag.chosen],
-        "ranking": [[f.summary() for f in r.fits] for r in diag.rounds],
-        "ties": [list(r.ties) for r in diag.rounds],
+        "format": "r2s-diagnose", "version": 2, "scene": r.scene,
+        "decision": [c.effect for c in r.kept],
+        "chosen": [c.summary() for c in r.kept],
+        "steps": list(r.steps),
+        "ranking": [[f.summary() for f in rnd.fits] for rnd in r.rounds],
+        "ties": [list(rnd.ties) for rnd in r.rounds],
         "not_identifiable": not_ident,
-        "n_obs": diag.n_obs,
-        "physics_stage": physics_stage,
-        "residuals": {"before": sse_by_block(diag.residuals_before),
-                      "predicted": sse_by_block(diag.residuals_after) if diag.chosen else None,
-                      "after": sse_by_block(measured_after)},
-        "residual_total": {"before": diag.sse_before,
-                           "predicted": diag.sse_after if diag.chosen else None,
-                           "after": (sum(sse_by_block(measured_after).values())
-                                     if measured_after is not None else None)},
-        "structure_before": structure(diag.residuals_before),
-        "structure_after": structure(measured_after) if measured_after is not None else None,
-        "gt_errors": None if gt_before is None else {"before": gt_before, "after": gt_after},
-        "rerun": {"stages": rerun_stages},
-        "applied": applied, "model": model, "notes": notes,
+        "n_obs": total_n(blocks_of(r.before)),
+        "physics_stage": r.physics_stage,
+        "residuals": {"before": sse_by_block(r.before),
+                      "predicted": sse_by_block(r.predicted) if r.kept else None,
+                      "after": sse_by_block(r.after)},
+        "residual_total": {"before": before_total,
+                           "predicted": (total_sse(blocks_of(r.predicted))
+                                         if r.kept and r.predicted is not None else None),
+                           "after": (sum(sse_by_block(r.after).values())
+                                     if r.after is not None else None)},
+        "structure_before": structure(r.before),
+        "structure_after": structure(r.after) if r.after is not None else None,
+        "structure_test": r.structure_final,
+        "unexplained": r.unexplained,
+        "gravity": r.gravity,
+        "gt_errors": None if r.gt_before is None else {"before": r.gt_before,
+                                                       "after": r.gt_after},
+        "rerun": {"stages": list(r.stages)},
+        "applied": r.applied, "model": r.model, "notes": list(r.notes),
     }
 
 
@@ -61,10 +101,9 @@ GT_ROWS = ("state_centroid_error_mm", "state_centroid_error_median_mm", "state_s
            "table_gravity_error_deg", "friction_error")
 
 
-def markdown(report: dict) -> str:
-    """A short human-readable report."""
-    effects = all_effects()
-    lines = [f"# r2s diagnose: {report['scene']}", ""]
+def _decision_lines(report: dict) -> list[str]:
+    """What was found: the kept effects, an unexplained structure, camera or table, ties."""
+    lines: list[str] = []
     if report["decision"]:
         for c in report["chosen"]:
             lines.append(f"**Effect found: `{c['effect']}`** ({c['note']}); "
@@ -72,11 +111,51 @@ def markdown(report: dict) -> str:
                          f"{c['explained_sse']:.1f} of {c['sse_before']:.1f} (normalised SSE).")
     else:
         lines.append("**No effect**: no candidate explains more of the residual than its "
-                     "parameters cost (BIC).")
-    for tie in report["ties"]:
+                     "parameters cost (BIC) and than noise alone explains.")
+    un = report.get("unexplained")
+    if un:
+        lines.append(f"\n**Unexplained structured residual**: {un['pattern']} "
+                     f"(chi-square {un['chi2']:.0f} on {un['dof']} tiles' degrees of freedom, "
+                     f"p = {un['p_value']:.2g}); no catalogued effect explains it "
+                     "(see structure.png).")
+    grav = report.get("gravity")
+    if grav:
+        lines.append(f"\nCamera or table: **{grav['choice']}** (alternative: "
+                     f"{grav['alternative']}; {grav['why']}).")
+    for tie in report["ties"][:1]:
         if tie and report["decision"]:
             lines.append(f"\nIndistinguishable on this data (delta BIC within the tie "
                          f"tolerance): {', '.join(tie)}; the first is preferred.")
+    return lines
+
+
+def _step_lines(report: dict) -> list[str]:
+    """The loop's steps as a table."""
+    lines: list[str] = []
+    if report.get("steps"):
+        lines += ["", "## Steps", "",
+                  "| step | effect | claimed blocks | claimed SSE before / predicted / after "
+                  "| total SSE before -> after | gt centroid mm before -> after | kept |",
+                  "| ---: | --- | --- | --- | --- | --- | --- |"]
+        for st in report["steps"]:
+            gb, ga = st.get("gt_before") or {}, st.get("gt_after") or {}
+            lines.append(
+                f"| {st['step'] + 1} | {st['kind']}: {', '.join(st['effects'])} | "
+                f"{', '.join(st['claimed_blocks']) or '-'} | {_fmt(st['claimed_sse_before'])} / "
+                f"{_fmt(st['claimed_sse_predicted'])} / {_fmt(st['claimed_sse_after'])} | "
+                f"{_fmt(st['residual_total_before'])} -> {_fmt(st['residual_total_after'])} | "
+                f"{_fmt(gb.get('state_centroid_error_mm'))} -> "
+                f"{_fmt(ga.get('state_centroid_error_mm'))} | "
+                f"{'yes' if st['kept'] else 'no'}: {st['reason']} |")
+    return lines
+
+
+def markdown(report: dict) -> str:
+    """A short human-readable report."""
+    effects = all_effects()
+    lines = [f"# r2s diagnose: {report['scene']}", ""]
+    lines += _decision_lines(report)
+    lines += _step_lines(report)
     lines += ["", "## Ranking", "",
               "| effect | score | delta BIC | explained SSE | k | size | note |",
               "| --- | ---: | ---: | ---: | ---: | ---: | --- |"]

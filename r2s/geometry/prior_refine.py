@@ -129,10 +129,7 @@ def refine_axis_scale(mesh: trimesh.Trimesh, observed_points: np.ndarray,
     """
     o = options
     obs = np.asarray(observed_points, dtype=np.float64).reshape(-1, 3)
-    pts, face_idx = trimesh.sample.sample_surface(mesh, o.samples, seed=o.seed)
-    nrm = np.asarray(mesh.face_normals)[face_idx]
-    keep = np.all(np.isfinite(nrm), axis=1) & (np.linalg.norm(nrm, axis=1) > 0.5)
-    pts, nrm = np.asarray(pts)[keep], nrm[keep]
+    pts, nrm = _surface_samples(mesh, o.samples, o.seed)
     verts = np.asarray(mesh.vertices, dtype=np.float64)
     centre = 0.5 * (verts.min(axis=0) + verts.max(axis=0))
     off0 = pts - centre
@@ -144,7 +141,6 @@ def refine_axis_scale(mesh: trimesh.Trimesh, observed_points: np.ndarray,
     s = np.full(3, float(scale))
     s_start = s.copy()
     lo, hi = np.log(o.scale_bounds[0]), np.log(o.scale_bounds[1])
-    vp = np.asarray(viewpoint, dtype=np.float64)
     on_support = False
     rng = np.random.default_rng(o.seed)
     fs_idx = rng.choice(len(pts), size=min(3000, len(pts)), replace=False)
@@ -155,20 +151,11 @@ def refine_axis_scale(mesh: trimesh.Trimesh, observed_points: np.ndarray,
             n_obj = nrm / s
             n_obj /= np.linalg.norm(n_obj, axis=1, keepdims=True)
             nw = n_obj @ R.T
-            facing = np.flatnonzero(np.einsum("nj,nj->n", nw, vp - xw) > 0)
-            if len(facing) < 10:
+            matched = _camera_facing_matches(xw, nw, obs, np.asarray(viewpoint, np.float64),
+                                             gate, o.trim_fraction)
+            if matched is None:
                 break
-            dist, pos = cKDTree(xw[facing]).query(obs, k=1, distance_upper_bound=gate)
-            found = pos < len(facing)
-            if found.sum() < 20:
-                break
-            idx = facing[pos[found]]
-            y = obs[found]
-            r = np.einsum("nj,nj->n", y - xw[idx], nw[idx])
-            if o.trim_fraction > 0:
-                cut = np.quantile(np.abs(r), 1.0 - o.trim_fraction)
-                sel = np.abs(r) <= max(cut, 1e-9)
-                idx, y, r = idx[sel], y[sel], r[sel]
+            idx, y, r = matched
             w = np.clip(1.0 - (r / gate) ** 2, 0.0, None) ** 2
             pivot = t
             J3 = _rows_3d(xw[idx] - pivot, local[idx], R)
@@ -178,47 +165,19 @@ def refine_axis_scale(mesh: trimesh.Trimesh, observed_points: np.ndarray,
             b = -J.T @ (w * r)
             wsum = float(w.sum())
             if o.edge_weight > 0 and gate == o.schedule_m[-1]:
-                r3 = y - xw[idx]
-                tang = r3 - np.einsum("nj,nj->n", r3, nw[idx])[:, None] * nw[idx]
-                off = np.linalg.norm(tang, axis=1) > 1.5 * spacing
-                if off.any():
-                    Jt = -J3[off]
-                    we = o.edge_weight * w[off]
-                    A += np.einsum("vki,vkj,v->ij", Jt, Jt, we)
-                    b -= np.einsum("vki,vk,v->i", Jt, tang[off], we)
+                _add_edge_terms(A, b, y - xw[idx], nw[idx], J3, w, spacing, o.edge_weight)
             if view is not None and o.silhouette_weight > 0:
-                viol, targets, tested = free_space_violations(
-                    view, xw[fs_idx], nw[fs_idx], o.free_space_tolerance_m)
-                if viol.any():
-                    vi = fs_idx[viol]
-                    r3 = targets - xw[vi]
-                    rn = np.linalg.norm(r3, axis=1)
-                    ws = o.silhouette_weight * wsum / max(tested, 1)
-                    ws = ws * np.minimum(1.0, gate / np.maximum(rn, 1e-12))
-                    Jf = -_rows_3d(xw[vi] - pivot, local[vi], R)
-                    A += np.einsum("vki,vkj,v->ij", Jf, Jf, ws)
-                    b -= np.einsum("vki,vk,v->i", Jf, r3, ws)
+                _add_free_space_terms(A, b, view, xw, nw, local, R, pivot, fs_idx, wsum,
+                                      gate, o)
             on_support = False
             if support is not None and o.support_weight > 0:
-                p0, n0 = np.asarray(support[0], float), np.asarray(support[1], float)
-                h = (xw - p0) @ n0
-                if h.min() < o.contact_m:
-                    on_support = True
-                    bottom = (np.flatnonzero(h < 0.0) if o.support_one_sided
-                              else np.flatnonzero(h < h.min() + o.bottom_band_m))
-                if on_support and len(bottom):
-                    Jb = np.einsum("k,vkj->vj", n0, _rows_3d(xw[bottom] - pivot,
-                                                            local[bottom], R))
-                    wb = o.support_weight * wsum / max(len(bottom), 50)
-                    A += wb * (Jb.T @ Jb)
-                    b -= wb * (Jb.T @ h[bottom])
+                on_support = _add_support_terms(A, b, support, xw, local, R, pivot, wsum, o)
             lam = o.scale_ridge * wsum * radius ** 2
             A[6:, 6:] += lam * np.eye(3)
             b[6:] -= lam * np.log(s / s_start)
             A += np.eye(9) * 1e-9 * max(np.trace(A) / 9, 1e-12)
-            try:
-                delta = np.linalg.solve(A, b)
-            except np.linalg.LinAlgError:
+            delta = _solve_or_none(A, b)
+            if delta is None:
                 break
             # x' = R_inc (x - pivot) + pivot + dt, scale s' = s * exp(ds)
             R_inc = Rotation.from_rotvec(delta[:3]).as_matrix()
@@ -227,8 +186,100 @@ def refine_axis_scale(mesh: trimesh.Trimesh, observed_points: np.ndarray,
             s = np.exp(np.clip(np.log(s) + delta[6:], lo, hi))
             if np.linalg.norm(delta[:3]) < 1e-6 and np.linalg.norm(delta[3:]) < 1e-7:
                 break
-    out = np.eye(4)
-    out[:3, :3] = R
-    out[:3, 3] = t - R @ (s * centre)
-    return RefinedPose(world_from_object=out, axis_scale=s, centre=centre,
-                       on_support=on_support)
+    out = np.block([[R, (t - R @ (s * centre))[:, None]], [np.zeros((1, 3)), np.ones((1, 1))]])
+    return RefinedPose(world_from_object=out, axis_scale=s, centre=centre, on_support=on_support)
+
+
+def _add_edge_terms(A: np.ndarray, b: np.ndarray, r3: np.ndarray, nw: np.ndarray,
+                    J3: np.ndarray, w: np.ndarray, spacing: float, weight: float) -> None:
+    """Add to the normal equations (A (9, 9), b (9,)) the tangential pull of matches that
+    lie off the prior's edge by more than 1.5 sample spacings. r3, nw: (n, 3) residual
+    vectors and world normals of the matches; J3 (n, 3, 9) their point Jacobians."""
+    tang = r3 - np.einsum("nj,nj->n", r3, nw)[:, None] * nw
+    off = np.linalg.norm(tang, axis=1) > 1.5 * spacing
+    if off.any():
+        Jt = -J3[off]
+        we = weight * w[off]
+        A += np.einsum("vki,vkj,v->ij", Jt, Jt, we)
+        b -= np.einsum("vki,vk,v->i", Jt, tang[off], we)
+
+
+def _add_free_space_terms(A: np.ndarray, b: np.ndarray, view: "ViewConstraint",
+                          xw: np.ndarray, nw: np.ndarray, local: np.ndarray, R: np.ndarray,
+                          pivot: np.ndarray, fs_idx: np.ndarray, wsum: float, gate: float,
+                          o: "RefineOptions") -> None:
+    """Add the pull of samples lying in space the camera saw empty towards their targets
+    (r2s.geometry.free_space); xw, nw, local (n, 3): world points, world normals, scaled
+    object-frame offsets; fs_idx: the samples tested."""
+    viol, targets, tested = free_space_violations(view, xw[fs_idx], nw[fs_idx],
+                                                  o.free_space_tolerance_m)
+    if not viol.any():
+        return
+    vi = fs_idx[viol]
+    r3 = targets - xw[vi]
+    rn = np.linalg.norm(r3, axis=1)
+    ws = o.silhouette_weight * wsum / max(tested, 1)
+    ws = ws * np.minimum(1.0, gate / np.maximum(rn, 1e-12))
+    Jf = -_rows_3d(xw[vi] - pivot, local[vi], R)
+    A += np.einsum("vki,vkj,v->ij", Jf, Jf, ws)
+    b -= np.einsum("vki,vk,v->i", Jf, r3, ws)
+
+
+def _add_support_terms(A: np.ndarray, b: np.ndarray, support: tuple, xw: np.ndarray,
+                       local: np.ndarray, R: np.ndarray, pivot: np.ndarray, wsum: float,
+                       o: "RefineOptions") -> bool:
+    """Add the support plane's push (one-sided: samples below it) or pull (the bottom band
+    onto it); returns whether the prior touches the plane (lowest sample < contact_m)."""
+    p0, n0 = np.asarray(support[0], float), np.asarray(support[1], float)
+    h = (xw - p0) @ n0
+    if not h.min() < o.contact_m:
+        return False
+    bottom = (np.flatnonzero(h < 0.0) if o.support_one_sided
+              else np.flatnonzero(h < h.min() + o.bottom_band_m))
+    if len(bottom):
+        Jb = np.einsum("k,vkj->vj", n0, _rows_3d(xw[bottom] - pivot, local[bottom], R))
+        wb = o.support_weight * wsum / max(len(bottom), 50)
+        A += wb * (Jb.T @ Jb)
+        b -= wb * (Jb.T @ h[bottom])
+    return True
+
+
+def _camera_facing_matches(xw: np.ndarray, nw: np.ndarray, obs: np.ndarray, vp: np.ndarray,
+                           gate: float, trim_fraction: float):
+    """Match each observed point (obs (N, 3)) to the nearest camera-facing prior sample
+    (xw, nw (n, 3), world) within ``gate`` m, drop the worst ``trim_fraction`` by |r|.
+    Returns (sample index (m,), observed point (m, 3), point-to-plane residual (m,)) or
+    None when too few samples face the camera (< 10) or match (< 20)."""
+    facing = np.flatnonzero(np.einsum("nj,nj->n", nw, vp - xw) > 0)
+    if len(facing) < 10:
+        return None
+    _, pos = cKDTree(xw[facing]).query(obs, k=1, distance_upper_bound=gate)
+    found = pos < len(facing)
+    if found.sum() < 20:
+        return None
+    idx = facing[pos[found]]
+    y = obs[found]
+    r = np.einsum("nj,nj->n", y - xw[idx], nw[idx])
+    if trim_fraction > 0:
+        cut = np.quantile(np.abs(r), 1.0 - trim_fraction)
+        sel = np.abs(r) <= max(cut, 1e-9)
+        idx, y, r = idx[sel], y[sel], r[sel]
+    return idx, y, r
+
+
+def _surface_samples(mesh: trimesh.Trimesh, count: int, seed: int
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 3) surface points and (n, 3) unit face normals of ``mesh`` (its frame); samples
+    on degenerate faces (no finite unit normal) are dropped."""
+    pts, face_idx = trimesh.sample.sample_surface(mesh, count, seed=seed)
+    nrm = np.asarray(mesh.face_normals)[face_idx]
+    keep = np.all(np.isfinite(nrm), axis=1) & (np.linalg.norm(nrm, axis=1) > 0.5)
+    return np.asarray(pts)[keep], nrm[keep]
+
+
+def _solve_or_none(A: np.ndarray, b: np.ndarray):
+    """The Gauss-Newton step A x = b, or None for a singular system."""
+    try:
+        return np.linalg.solve(A, b)
+    except np.linalg.LinAlgError:
+        return None

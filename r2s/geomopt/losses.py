@@ -26,11 +26,23 @@ def contact_term(d: torch.Tensor, k: int, length_scale_m: float = 1e-3) -> torch
 
 
 def anchor_term(rotation_m: torch.Tensor, trans: torch.Tensor, sigma_rotation_m: float,
-                sigma_translation_m: float) -> torch.Tensor:
+                sigma_translation_m: float, rays: torch.Tensor | None = None,
+                sideways_ratio: float = 1.0) -> torch.Tensor:
     """(M,) squared pose deviation from the init pose, each part over its scale squared.
 
     ``rotation_m`` (M, 3) is the rotation vector times the object's radius (how far the
     rotation moves the object's farthest point); ``trans`` (M, 3) the translation.
+
+    Image-space anchor: with ``rays`` (M, 3), unit viewing rays from the camera through
+    each object's centre, the translation splits into its part along the ray (scale
+    ``sigma_translation_m``) and its part across it (scale ``sigma_translation_m /
+    sideways_ratio``). A move across the ray shifts the object's silhouette by
+    f |t_perp| / z pixels, one along it only rescales the silhouette (f r |t_along| / z^2
+    at its rim, r / z times less) and changes the observed depth: the prior the camera
+    gives. ``sideways_ratio`` = 1 is the isotropic anchor.
     """
-    return ((rotation_m * rotation_m).sum(-1) / sigma_rotation_m**2
-            + (trans * trans).sum(-1) / sigma_translation_m**2)
+    cost = (trans * trans).sum(-1)
+    if rays is not None and sideways_ratio != 1.0:
+        along = (trans * rays).sum(-1)
+        cost = cost + (sideways_ratio**2 - 1.0) * (cost - along * along)
+    return (rotation_m * rotation_m).sum(-1) / sigma_rotation_m**2 + cost / sigma_translation_m**2

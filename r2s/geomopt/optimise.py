@@ -5,6 +5,7 @@ L_geom = lambda_pen * sum over pair directions of penetration(a's samples in b's
        + lambda_con * sum over support edges of contact(child's samples in parent's SDF
                                                       or the support plane)
        + lambda_anchor * sum over objects of anchor(rotation, translation)
+         (image-space with a camera: moves across the viewing ray cost more)
        + lambda_free_space * sum over objects of free_space(samples vs the observed view)
 
 The free-space term (:mod:`r2s.geomopt.free_space`, only when the problem carries an
@@ -67,6 +68,10 @@ class GeomParams:
     sigma_translation_m: float = 0.02
     sigma_rotation_m: float = 0.01
     """Scale of the rotation anchor, as the displacement of the object's farthest point."""
+    anchor_sideways_ratio: float = 1.0
+    """Image-space anchor (with a camera in the problem): translation across the viewing
+    ray costs this many times more per metre than along it (scale sigma_translation_m /
+    ratio), since it moves the silhouette (:func:`r2s.geomopt.losses.anchor_term`)."""
     top_k: int = 10
     length_scale_m: float = 1e-3
     lambda_free_space: float = 0.0
@@ -141,6 +146,8 @@ class GeomProblem:
     """(3,) against gravity; the plane normal when None."""
     view: ObservedView | None = None
     """What the camera saw (objects in the order of ``ids``), for the free-space term."""
+    camera_position_m: np.ndarray | None = None
+    """(3,) the camera's optical centre (world), for the image-space anchor."""
 
 
 @dataclass
@@ -204,6 +211,10 @@ class _Tensors:
         self.up = torch.as_tensor(problem.up if problem.up is not None else problem.plane_normal,
                                   dtype=dtype)
         self.up = self.up / torch.linalg.norm(self.up)
+        self.rays = None
+        if problem.camera_position_m is not None:
+            rays = self.centres - torch.as_tensor(problem.camera_position_m, dtype=dtype)
+            self.rays = rays / torch.linalg.norm(rays, dim=-1, keepdim=True).clamp_min(1e-9)
         contact = [(c, p) for c, p in problem.support_edges if p != TABLE]
         pen = set()
         for a, b in list(problem.penetration_pairs) + contact:
@@ -330,7 +341,8 @@ def _terms(t: _Tensors, x: torch.Tensor, radius: torch.Tensor, params: GeomParam
         contact = contact + contact_term(t.contact_distances(rot, world, trans_c), params.top_k, scale).sum()
     if len(t.table_children):
         contact = contact + contact_term(plane[t.table_children], params.top_k, scale).sum()
-    anchor = anchor_term(rho, trans, params.sigma_rotation_m, params.sigma_translation_m).sum()
+    anchor = anchor_term(rho, trans, params.sigma_rotation_m, params.sigma_translation_m,
+                         t.rays, params.anchor_sideways_ratio).sum()
     total = (params.lambda_penetration * (pen_pairs + pen_table)
              + params.lambda_contact * contact + params.lambda_anchor * anchor
              + params.lambda_free_space * free_space)

@@ -9,11 +9,15 @@ The flag travels in the state as :data:`OBSERVATION_FLAG_KEY` and ends in the ob
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
 
+from r2s.io.paths import ScenePaths
+from r2s.io.state import SceneState, read_state
 from r2s.metrics.observation import pose_displacement
+from r2s.scene_model import corrected_state
 
 OBSERVATION_FLAG_KEY = "observation_flag"
 """Per-object key of a state: why a stage flagged the object (absent / None: not flagged)."""
@@ -53,3 +57,45 @@ def displacement_flags(init_world_from_object: Mapping[int, np.ndarray],
         if parts:
             flags[i] = f"{stage} {' and '.join(parts)} from where it was seen to make it rest"
     return flags, disp
+
+
+@dataclass(frozen=True)
+class ObservationBound:
+    """Where each object was seen, and how far a repair may carry it from there.
+
+    seen : id -> (4, 4) init pose (registered to the image); centres : id -> (3,)
+    object-frame point whose motion counts (mesh centroid); an object without a seen pose
+    is unbounded.
+    """
+
+    seen: Mapping[int, np.ndarray]
+    centres: Mapping[int, np.ndarray]
+    tolerance_m: float
+    tolerance_deg: float
+
+    def excess(self, oid: int, pose: np.ndarray) -> float:
+        """max(move / tolerance_m, turn / tolerance_deg) of ``pose`` from where ``oid``
+        was seen: <= 1 within tolerance (0 for an object without a seen pose)."""
+        if oid not in self.seen:
+            return 0.0
+        m, deg = pose_displacement(self.seen[oid], pose, self.centres[oid])
+        return max(m / self.tolerance_m, deg / self.tolerance_deg)
+
+    def allows(self, oid: int, start: np.ndarray, end: np.ndarray) -> bool:
+        """A repair may take ``oid`` from ``start`` to ``end``: it ends within tolerance,
+        or no farther from the observation than it started (it may come back)."""
+        after = self.excess(oid, end)
+        return after <= 1.0 or after <= self.excess(oid, start) + 1e-9
+
+    def beyond(self, poses: Mapping[int, np.ndarray]) -> list[int]:
+        """Ids whose pose is beyond tolerance from where they were seen."""
+        return [i for i, pose in poses.items() if self.excess(i, pose) > 1.0]
+
+
+def seen_poses(paths: ScenePaths, state: SceneState, model: dict) -> dict[int, np.ndarray]:
+    """id -> the pose where the object was seen: init's (as the scene's model corrects it),
+    else the given state's."""
+    seen = state
+    if (paths.stage_dir("init") / "state.json").is_file():
+        seen = corrected_state(read_state(paths.stage_dir("init")), model)
+    return {o.id: np.asarray(o.pose, dtype=float) for o in seen.objects}

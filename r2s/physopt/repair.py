@@ -7,6 +7,14 @@ moves the movers' COM over their support (:func:`com_repair`), raises their fric
 its upper bound, and settles the scene quasi-statically; when rounds run out with objects
 moving, a damped dynamic rest is the last resort (:func:`damped_rest`). The best checked
 state is kept (:func:`score`).
+
+Repairs are bounded by the observation (:class:`r2s.physopt.observation_bound.ObservationBound`),
+in tiers of least observation change (:func:`verify_and_repair`): the COM and friction
+repairs, which change nothing the camera sees, are checked before any settling; settling
+and the damped rest may not carry an object beyond ``repair_tolerance_m`` / ``_deg`` from
+where it was seen, then (objects still moving) beyond the flagging tolerance; the
+unbounded repairs run only when an object still drifts at least ``fallback_severity`` of
+the judge's criterion (what they move far is flagged by the stage).
 """
 
 from __future__ import annotations
@@ -19,6 +27,7 @@ import pybullet as pb
 
 from r2s.console import ProgressFn
 from r2s.io.state import SceneState
+from r2s.physopt.observation_bound import ObservationBound
 from r2s.physopt.params import Drift, ObjectParams, Params
 from r2s.physopt.settings import RepairSettings
 from r2s.physopt.pybullet_world import (SimBody, World, build_world, depenetrate, drift,
@@ -111,16 +120,27 @@ def check(make_world: MakeWorld, params: Params, orders: list[list[int]],
     return worst
 
 
-def score(drifts: Drift, settings: RepairSettings) -> tuple:
+def severities(drifts: Drift, settings: RepairSettings) -> dict[int, float]:
+    """Per object, its drift as a fraction of the judge's criterion (>= 1: fails)."""
+    return {i: max(t / settings.judge_translation_m, r / settings.judge_rotation_deg)
+            for i, (t, r) in drifts.items()}
+
+
+def score(drifts: Drift, settings: RepairSettings, params: Optional[Params] = None,
+          bound: Optional[ObservationBound] = None) -> tuple:
     """Rank of a checked state, lower is better: fewest objects failing the judge's
     criterion; among those, the failures closest to passing (a state whose failures creep
     is a better start for the damped rest than one where they fly off); then fewest moving
-    at all; then least drift."""
-    severity = {i: max(t / settings.judge_translation_m, r / settings.judge_rotation_deg)
-                for i, (t, r) in drifts.items()}
+    at all; then (with a ``bound``) fewest objects beyond the observation tolerance; then
+    least drift. The bounded repairs come first (:func:`verify_and_repair`), so a state
+    beyond the tolerance only wins when it is the only one that rests."""
+    severity = severities(drifts, settings)
     failing = [i for i, s in severity.items() if s >= 1.0]
+    far = 0
+    if bound is not None and params is not None:
+        far = len(bound.beyond({i: p.world_from_object for i, p in params.items()}))
     return (len(failing), round(sum(severity[i] for i in failing), 1),
-            len(settings.moving(drifts)), sum(t for t, _ in drifts.values()))
+            len(settings.moving(drifts)), far, sum(t for t, _ in drifts.values()))
 
 
 def _drift_log(drifts: Drift) -> dict[str, list]:
@@ -128,10 +148,20 @@ def _drift_log(drifts: Drift) -> dict[str, list]:
 
 
 def repair_round(make_world: MakeWorld, params: Params, order: list[int], movers: list[int],
-                 result: Drift, rnd: int, settings: RepairSettings, log: dict) -> Params:
+                 result: Drift, rnd: int, settings: RepairSettings, log: dict,
+                 bound: Optional[ObservationBound] = None) -> Params:
     """One round on the movers: COM towards the support, friction to its bound, then a
-    quasi-static settle of the whole scene (a settling move beyond the round's limit is
-    refused). Returns the new parameters."""
+    quasi-static settle of the whole scene (:func:`settle_round`). Returns the new
+    parameters."""
+    params = mass_and_friction_repair(make_world, params, movers, result, rnd, settings, log)
+    return settle_round(make_world, params, order, rnd, settings, log, bound)
+
+
+def mass_and_friction_repair(make_world: MakeWorld, params: Params, movers: list[int],
+                             result: Drift, rnd: int, settings: RepairSettings, log: dict
+                             ) -> Params:
+    """The repairs the camera cannot see: the movers' COM towards their support
+    (:func:`com_repair`) and their friction to its upper bound."""
     params = dict(params)
     if settings.com_repair:
         world = make_world(params)
@@ -150,6 +180,17 @@ def repair_round(make_world: MakeWorld, params: Params, order: list[int], movers
                                      f"{hi:.2f} (moved {result[i][0] * 1000:.1f} mm, "
                                      f"{result[i][1]:.1f} deg)")
             params[i] = replace(params[i], friction=hi)
+    return params
+
+
+def settle_round(make_world: MakeWorld, params: Params, order: list[int], rnd: int,
+                 settings: RepairSettings, log: dict,
+                 bound: Optional[ObservationBound] = None,
+                 only: Optional[set[int]] = None) -> Params:
+    """Quasi-static settle of the whole scene; a settling move beyond the round's limit,
+    with a ``bound`` one that carries an object beyond the observation tolerance, and with
+    ``only`` the move of an object outside it, is refused (the object keeps its pose)."""
+    params = dict(params)
     world = make_world(params)
     try:
         start = {i: params[i].world_from_object for i in order}
@@ -160,7 +201,12 @@ def repair_round(make_world: MakeWorld, params: Params, order: list[int], movers
     limit = settings.final_settle_shift_m if last else settings.max_settle_shift_m
     for i in order:
         shift = float(np.linalg.norm(settled[i][:3, 3] - start[i][:3, 3]))
-        if shift <= limit:
+        if only is not None and i not in only:
+            continue
+        if bound is not None and not bound.allows(i, start[i], settled[i]):
+            log["objects"][i].append(f"round {rnd}: settling would carry it beyond the "
+                                     "observation tolerance; kept in place")
+        elif shift <= limit:
             if shift > SHIFT_NOTED_M:
                 log["objects"][i].append(f"round {rnd}: settled by {shift * 1000:.1f} mm")
             params[i] = params[i].with_pose(settled[i])
@@ -172,12 +218,14 @@ def repair_round(make_world: MakeWorld, params: Params, order: list[int], movers
 
 def damped_rest(make_world: MakeWorld, params: Params, order: list[int],
                 orders: list[list[int]], settings: RepairSettings, log: dict, current: Drift,
-                movers_only: bool) -> Optional[tuple[Params, Drift]]:
+                movers_only: bool, bound: Optional[ObservationBound] = None
+                ) -> Optional[tuple[Params, Drift]]:
     """Let the engine bring the scene to a damped dynamic rest (with ``movers_only``, the
     objects that passed the ``current`` check are held fixed meanwhile) and check it.
 
     Returns the rest parameters and their check, or None when something would move further
-    than ``final_settle_shift_m``.
+    than ``final_settle_shift_m`` (with a ``bound``: or beyond the observation tolerance,
+    :meth:`ObservationBound.allows`).
     """
     still = set(settings.moving(current))
     held = {i: replace(params[i], movable=params[i].movable and i in still) for i in order} \
@@ -191,6 +239,12 @@ def damped_rest(make_world: MakeWorld, params: Params, order: list[int],
     what = "damped rest (" + ("moving objects only" if movers_only else "whole scene") + ")"
     shifts = {i: float(np.linalg.norm(rest[i][:3, 3] - start[i][:3, 3])) for i in order}
     worst = max(shifts, key=shifts.get)
+    far = [i for i in order if bound is not None and not bound.allows(i, start[i], rest[i])]
+    if far:
+        log["rounds"].append({"round": "rest", "action": what + " rejected",
+                              "reason": f"object {far[0]} would end beyond the observation "
+                                        "tolerance"})
+        return None
     if shifts[worst] > settings.final_settle_shift_m:
         log["rounds"].append({"round": "rest", "action": what + " rejected",
                               "reason": f"object {worst} would move {shifts[worst] * 1000:.0f} mm"})
@@ -211,39 +265,113 @@ Kept = tuple[tuple, Params, Drift, Union[int, str]]
 
 def verify_and_repair(make_world: MakeWorld, params: Params, order: list[int],
                       export_order: list[int], settings: RepairSettings, log: dict,
-                      progress: ProgressFn) -> tuple[Params, Drift]:
+                      progress: ProgressFn, bound: Optional[ObservationBound] = None
+                      ) -> tuple[Params, Drift]:
     """Check, then repair rounds while anything moves, then the damped rest if needed.
 
     Rounds need not improve monotonically (settling one object can unsettle its
     neighbour), so the best checked state (:func:`score`) is returned with its check.
     ``export_order``: the order bodies are created in by the judge (checked forwards and
-    backwards).
+    backwards). With a ``bound`` the rounds and the rest run in tiers of least observation
+    change: within ``repair_tolerance_m`` / ``_deg`` of where each object was seen; when
+    objects still move, within the bound's (flagging) tolerance; the unbounded ones only
+    when an object's drift is still at least ``fallback_severity`` of the judge's
+    criterion.
     """
     orders = [export_order, export_order[::-1]] if len(export_order) > 1 else [export_order]
     result = check(make_world, params, orders, settings.verify_duration_s)
     log["rounds"].append({"round": 0, "action": "check", "moving": settings.moving(result),
                           "drift": _drift_log(result)})
-    best: Kept = (score(result, settings), params, result, 0)
-    for rnd in range(1, settings.max_rounds + 1):
-        movers = settings.moving(result)
-        if not movers:
+
+    def rank(drifts: Drift, candidate: Params) -> tuple:
+        return score(drifts, settings, candidate, bound)
+
+    best: Kept = (rank(result, params), params, result, 0)
+    phases: list[tuple[Optional[ObservationBound], str]] = [(None, "")]
+    if bound is not None:
+        tight = replace(bound, tolerance_m=min(settings.repair_tolerance_m, bound.tolerance_m),
+                        tolerance_deg=min(settings.repair_tolerance_deg, bound.tolerance_deg))
+        phases = [(tight, ""), (bound, "b"), (None, "u")]
+    for k, (limit, label) in enumerate(phases):
+        if k > 0 and not settings.moving(best[2]):
             break
-        progress(f"verification round {rnd}: {len(movers)} moving",
-                 0.5 + 0.5 * rnd / (settings.max_rounds + 1))
-        params = repair_round(make_world, params, order, movers, result, rnd, settings, log)
-        result = check(make_world, params, orders, settings.verify_duration_s)
-        log["rounds"].append({"round": rnd, "action": "friction+settle",
-                              "moving": settings.moving(result), "drift": _drift_log(result)})
-        if score(result, settings) < best[0]:
-            best = (score(result, settings), params, result, rnd)
-    if settings.moving(best[2]) and settings.rest_duration_s > 0 and settings.max_rounds > 0:
-        for movers_only in (True, False):  # the least disturbing first
-            trial = damped_rest(make_world, best[1], order, orders, settings, log, best[2],
-                                movers_only)
-            if trial is not None and score(trial[1], settings) < best[0]:
-                best = (score(trial[1], settings), trial[0], trial[1], "rest")
-            if not settings.moving(best[2]):
+        if limit is None and bound is not None:
+            worst = max(severities(best[2], settings).values(), default=0.0)
+            if worst < settings.fallback_severity:
                 break
+            log["rounds"].append({"round": "fallback", "action": "unbounded repairs",
+                                  "reason": f"after the observation-bounded repairs an object "
+                                            f"drifts {worst:.2f} of the judge's criterion"})
+        elif k > 0:
+            log["rounds"].append({"round": "wider", "action": "repairs within the observation "
+                                  "tolerance", "reason": "objects still move"})
+        best = _repair_phase(make_world, best, order, orders, settings, log, progress, limit,
+                             rank, label)
     log["kept"] = {"round": best[3], "moving": settings.moving(best[2])}
     return best[1], best[2]
 
+
+def _same(a: ObjectParams, b: ObjectParams) -> bool:
+    return (a.friction == b.friction
+            and np.allclose(a.world_from_object, b.world_from_object, rtol=0, atol=SHIFT_NOTED_M)
+            and np.array_equal(a.com_in_object, b.com_in_object))
+
+
+def _repair_phase(make_world: MakeWorld, best: Kept, order: list[int],
+                  orders: list[list[int]], settings: RepairSettings, log: dict,
+                  progress: ProgressFn, bound: Optional[ObservationBound],
+                  rank: Callable[[Drift, Params], tuple], label: str) -> Kept:
+    """The rounds, then the damped rest, from the state ``best`` (its params and check);
+    settling and rest bounded by ``bound`` when given. Returns the best state seen."""
+    params, result = best[1], best[2]
+    rnd = 0
+    while rnd < settings.max_rounds:
+        rnd += 1
+        movers = settings.moving(result)
+        if not movers:
+            break
+        progress(f"verification round {label}{rnd}: {len(movers)} moving",
+                 0.5 + 0.5 * rnd / (settings.max_rounds + 1))
+        before = params
+        name = f"{label}{rnd}" if label else rnd
+        if bound is None:
+            params = repair_round(make_world, params, order, movers, result, rnd, settings, log)
+        else:
+            # least observation change first: COM and friction, checked before any settling,
+            # which then moves only what still moves
+            params = mass_and_friction_repair(make_world, params, movers, result, rnd,
+                                              settings, log)
+            result = check(make_world, params, orders, settings.verify_duration_s)
+            log["rounds"].append({"round": name, "action": "COM+friction", "bounded": True,
+                                  "moving": settings.moving(result),
+                                  "drift": _drift_log(result)})
+            if rank(result, params) < best[0]:
+                best = (rank(result, params), params, result, name)
+            if not settings.moving(result):
+                break
+            checked = params
+            params = settle_round(make_world, params, order, rnd, settings, log, bound,
+                                  only=set(settings.moving(result)))
+            if all(_same(checked[i], params[i]) for i in order) and \
+                    not all(_same(before[i], params[i]) for i in order):
+                continue  # settling refused everything; the check above is current
+        if all(_same(before[i], params[i]) for i in order):
+            # nothing changed, so the check would repeat: on to the last round (its larger
+            # settling limit), or done
+            rnd = max(rnd, settings.max_rounds - 1)
+            continue
+        result = check(make_world, params, orders, settings.verify_duration_s)
+        log["rounds"].append({"round": name, "action": "friction+settle" if bound is None
+                              else "settle", "bounded": bound is not None,
+                              "moving": settings.moving(result), "drift": _drift_log(result)})
+        if rank(result, params) < best[0]:
+            best = (rank(result, params), params, result, name)
+    if settings.moving(best[2]) and settings.rest_duration_s > 0 and settings.max_rounds > 0:
+        for movers_only in (True, False):  # the least disturbing first
+            trial = damped_rest(make_world, best[1], order, orders, settings, log, best[2],
+                                movers_only, bound)
+            if trial is not None and rank(trial[1], trial[0]) < best[0]:
+                best = (rank(trial[1], trial[0]), trial[0], trial[1], f"{label}rest")
+            if not settings.moving(best[2]):
+                break
+    return best

@@ -46,6 +46,28 @@ class RepairSettings(BaseModel):
                                "more check (0: off).")
     rest_damping: float = Field(0.9, ge=0, le=1, description="Velocity loss per second in "
                                                              "that damped settling.")
+    observation_tolerance_m: float = Field(
+        0.02, gt=0, description="An object that ends farther than this from its init pose "
+                                "(where it was seen) is flagged, not silently moved, m; the "
+                                "observation-bounded repairs keep objects within it.")
+    observation_tolerance_deg: float = Field(
+        15.0, gt=0, description="... or turned more than this from its init pose, degrees.")
+    repair_tolerance_m: float = Field(
+        0.005, gt=0, description="The first, tightest tier of the observation-bounded repairs: "
+                                 "settling and rest may not carry an object farther than this "
+                                 "from where it was seen, m (the next tier allows "
+                                 "observation_tolerance_m when objects still move).")
+    repair_tolerance_deg: float = Field(
+        3.0, gt=0, description="... nor turn it more than this, degrees.")
+    observation_bound: bool = Field(
+        True, description="Repair first within the observation tolerance (settling and the "
+                          "damped rest may not carry an object beyond it); the unbounded "
+                          "repairs run only when that leaves an object failing the judge "
+                          "(see r2s.physopt.repair.verify_and_repair).")
+    fallback_severity: float = Field(
+        0.5, gt=0, description="The unbounded repairs run when an object's check drift is at "
+                               "least this fraction of the judge's criterion after the "
+                               "observation-bounded ones.")
 
     def moving(self, drifts: Drift) -> list[int]:
         """Ids whose drift exceeds the at-rest tolerance."""

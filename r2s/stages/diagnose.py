@@ -1,9 +1,9 @@
 """Stage ``diagnose``: trace the residual to an effect the model lacks, and measure the fix.
 
 1. Measure the residuals of the current reconstruction (registration, support, depth,
-   physical rollout, observed push): :mod:`r2s.diagnose.scene`.
+   physical rollout, observed push): :mod:`r2s.diagnose.measure.scene_dir`.
 2. Fit every candidate effect of the catalogue and rank them by BIC against "no effect":
-   :mod:`r2s.diagnose.ranking`.
+   :mod:`r2s.diagnose.stats.ranking`.
 3. With an effect found, rerun the affected stages on a temporary copy of the scene with
    the effect in the model, and measure the residual and (with ``gt/``) the ground-truth
    errors again: :mod:`r2s.runner.rerun`.
@@ -21,18 +21,22 @@ from typing import Literal
 
 from pydantic import Field, field_validator
 
+import numpy as np
+
 from r2s.diagnose.effects import all_effects
-from r2s.diagnose.plots import residual_figure
-from r2s.diagnose.ranking import diagnose
-from r2s.diagnose.report import build_report, markdown
-from r2s.runner.rerun import model_with_fits, rerun_with_effects, temporary_root
-from r2s.diagnose.scene import MeasureSettings, measure_scene, scene_gt_errors
+from r2s.diagnose.stats.camera_or_table import camera_or_table
+from r2s.diagnose.plots import residual_figure, structure_figure
+from r2s.diagnose.stats.ranking import NoiseBar
+from r2s.diagnose.report import ReportInput, build_report, markdown
+from r2s.diagnose.measure.scene_dir import MeasureSettings
 from r2s.errors import R2SError
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json, atomic_write_text
+from r2s.io.manifest import Manifest, load_manifest, save_manifest
 from r2s.io.paths import DIAGNOSE_REPORT_FILE, ScenePaths
 from r2s.runner.base import StageContext, StageOptions, StageSpec, model_hashes
-from r2s.io.manifest import Manifest, load_manifest, save_manifest
+from r2s.runner.diagnose_loop import LoopConfig, release, run_loop
 from r2s.runner.registry import PIPELINE, get_stage
+from r2s.runner.rerun import model_with_fits
 
 
 class Options(StageOptions):
@@ -40,7 +44,26 @@ class Options(StageOptions):
                                            "(manifest.model); later stages and 'r2s run' use it.")
     effects: list[str] = Field(default_factory=list,
                                description="Effects to consider, comma-separated (default: all).")
-    max_effects: int = Field(1, ge=1, le=2, description="How many effects to put in the model.")
+    max_effects: int = Field(3, ge=1, le=4, description="How many effects the loop may keep.")
+    max_steps: int = Field(4, ge=1, le=8, description="Loop steps (effects tried, kept or "
+                                                     "reverted) at most.")
+    budget_s: float = Field(3600.0, gt=0, description="Start no new loop step after this "
+                                                      "many seconds.")
+    joint_refit: bool = Field(True, description="Refit interacting kept effects together at "
+                                                "the end (one more rerun).")
+    camera_prior_odds: float = Field(
+        4.0, gt=0, description="Prior odds of a camera extrinsic error against a tilted table "
+                               "when the table is a few degrees off the declared vertical "
+                               "(table_tilt carries 2 ln(odds) BIC units).")
+    noise_draws: int = Field(200, ge=0, description="Bootstrap draws of noise alone over the "
+                                                    "objects (0: no noise bar).")
+    noise_quantile: float = Field(0.99, gt=0.5, lt=1.0,
+                                  description="An effect must explain more than noise alone "
+                                              "explains in this share of the draws.")
+    structure_alpha: float = Field(1e-3, gt=0, lt=1, description="Level of the test for "
+                                                                 "structure in the residual.")
+    table_shape_sigma_m: float = Field(0.0004, gt=0, description="Noise of a table tile's "
+                                                                 "mean distance to its plane.")
     rerun: bool = Field(True, description="Rerun the affected stages on a copy of the scene to "
                                           "measure the residual and gt errors after.")
     rerun_stages: list[str] = Field(default_factory=list,
@@ -51,12 +74,16 @@ class Options(StageOptions):
     tie_tolerance: float = Field(2.0, ge=0, description="Effects within this delta BIC of the "
                                                         "best are reported as indistinguishable.")
     camera_rotation_penalty: float = Field(
-        20.0, ge=0, description="Extra evidence (BIC units) camera_rotation needs: a wrong "
-                                "camera correction moves every object, a wrong table_tilt "
-                                "none.")
+        0.0, ge=0, description="Extra evidence (BIC units) camera_rotation needs on top of "
+                               "the prior odds.")
     scale_sigma: float = Field(0.01, gt=0, description="Floor of the relative size error of one "
                                                        "prior (the priors' measured spread is "
                                                        "used when larger).")
+    prior_scale_sigma: float = Field(0.02, gt=0, description="Prior spread of one prior's "
+                                                              "size error (log), pooled with "
+                                                              "the measured spread.")
+    prior_scale_dof: float = Field(4.0, ge=0, description="How many objects' worth that "
+                                                          "prior spread counts for.")
     support_sigma_deg: float = Field(0.3, gt=0, description="Noise of each table tilt component, "
                                                             "degrees.")
     min_fitness: float = Field(0.6, ge=0, le=1, description="An object's shape fits the data when "
@@ -113,6 +140,8 @@ def model_not_in_effect(paths: ScenePaths, manifest: Manifest) -> list[str]:
 def settings_of(options: Options) -> MeasureSettings:
     return MeasureSettings(
         scale_sigma=options.scale_sigma, support_sigma_deg=options.support_sigma_deg,
+        prior_scale_sigma=options.prior_scale_sigma, prior_scale_dof=options.prior_scale_dof,
+        table_shape_sigma_m=options.table_shape_sigma_m,
         min_fitness=options.min_fitness, max_rmse_m=options.max_rmse_m,
         physics_source=options.physics_source, physics=options.physics,
         horizon_s=options.horizon_s, sigma_translation_m=options.sigma_translation_m,
@@ -131,64 +160,76 @@ def _catalogue(options: Options) -> dict:
     return {k: v for k, v in cat.items() if k in options.effects}
 
 
+def loop_config(options: Options) -> LoopConfig:
+    return LoopConfig(
+        max_steps=options.max_steps, max_effects=options.max_effects, budget_s=options.budget_s,
+        min_evidence=options.min_evidence, tie_tolerance=options.tie_tolerance,
+        penalties={"camera_rotation": options.camera_rotation_penalty,
+                   "table_tilt": float(2.0 * np.log(options.camera_prior_odds))},
+        noise=(NoiseBar(options.noise_draws, options.noise_quantile)
+               if options.noise_draws > 0 else None),
+        rerun=options.rerun, rerun_stages=options.rerun_stages or None,
+        structure_alpha=options.structure_alpha, joint_refit=options.joint_refit)
+
+
 def run(ctx: StageContext) -> dict:
     paths, options, progress = ctx.paths, ctx.options, ctx.progress
     effects = _catalogue(options)
     settings = settings_of(options)
     model = dict(ctx.manifest.model)
 
-    before = measure_scene(paths.root, settings, model, lambda m, f: progress(m, 0.3 * f))
-    diag = diagnose(before.residuals, effects, options.max_effects, options.min_evidence,
-                    options.tie_tolerance, lambda m, f: progress(m, 0.3 + 0.2 * f),
-                    penalties={"camera_rotation": options.camera_rotation_penalty})
-    notes = list(before.residuals.notes) + model_not_in_effect(paths, ctx.manifest)
-    gt_before = scene_gt_errors(paths.root)
-    gt_after = measured_after = None
-    stages: list[str] = []
-    if diag.chosen and options.rerun:
-        work = temporary_root()
-        try:
-            copy, stages = rerun_with_effects(paths.root, list(diag.chosen), Path(work.name),
-                                              options.rerun_stages or None,
-                                              lambda m, f: progress(m, 0.5 + 0.35 * f))
-            progress("measuring the residual after", 0.86)
-            after = measure_scene(copy, settings, None)
-            measured_after = after.residuals
-            gt_after = scene_gt_errors(copy)
-            if options.keep_copy:
-                work._finalizer.detach()  # type: ignore[attr-defined]
-                notes.append(f"rerun copy kept at {copy}")
-        finally:
-            if not options.keep_copy:
-                work.cleanup()
-
-    new_model = model_with_fits(model, list(diag.chosen)) if options.apply else model
-    report = build_report(paths.root.name, diag, before.physics_stage, measured_after, stages,
-                          gt_before, gt_after, bool(options.apply and diag.chosen), new_model,
-                          notes)
+    loop = run_loop(paths.root, settings, loop_config(options), effects, model,
+                    lambda m, f: progress(m, 0.95 * f))
+    notes = list(loop.before.residuals.notes) + model_not_in_effect(paths, ctx.manifest)
+    notes += loop.notes
+    kept = list(loop.kept)
+    measured_after = loop.final.residuals if kept and options.rerun else None
+    copy = release(loop, options.keep_copy)
+    if copy is not None:
+        notes.append(f"rerun copy kept at {copy}")
+    new_model = model_with_fits(model, kept) if options.apply else model
+    predicted = kept[-1].residuals_after if kept else None
+    report = build_report(ReportInput(
+        scene=paths.root.name, rounds=tuple(loop.rounds), kept=tuple(kept),
+        steps=tuple(st.summary() for st in loop.steps), before=loop.before.residuals,
+        predicted=predicted, after=measured_after, physics_stage=loop.before.physics_stage,
+        stages=tuple(loop.stages), gt_before=loop.gt_before, gt_after=loop.gt_final,
+        applied=bool(options.apply and kept), model=new_model, notes=tuple(notes),
+        structure_final=loop.structure_final.summary() if loop.structure_final else None,
+        unexplained=loop.unexplained.summary() if loop.unexplained else None,
+        gravity=camera_or_table(loop.rounds[0] if loop.rounds else None, kept,
+                                options.camera_prior_odds)))
     atomic_write_json(ctx.out_dir / DIAGNOSE_REPORT_FILE, report)
     atomic_write_text(ctx.out_dir / "report.md", markdown(report))
     if options.plots:
         title = (f"{paths.root.name}: " + (", ".join(report["decision"]) or "no effect"))
         atomic_write_bytes(ctx.out_dir / "residuals.png",
-                           residual_figure(diag.residuals_before,
-                                           diag.residuals_after if diag.chosen else None,
-                                           measured_after, title))
-    if options.apply and diag.chosen:
+                           residual_figure(loop.before.residuals, predicted, measured_after,
+                                           title))
+        finding = loop.unexplained or loop.structure_final
+        shape = loop.final.residuals.table_shape
+        if finding is not None and shape is not None:
+            atomic_write_bytes(ctx.out_dir / "structure.png", structure_figure(
+                finding, shape.width, shape.height,
+                f"{paths.root.name}: residual left after the loop, "
+                + ("unexplained structure" if loop.unexplained else "no structure found")))
+    if options.apply and kept:
         manifest = load_manifest(paths.manifest)
         manifest.model = new_model
         save_manifest(paths.manifest, manifest)
     progress("done", 1.0)
-    best = diag.rounds[0].best if diag.rounds else None
-    summary = {"effect": ",".join(report["decision"]) or "none",
-               "delta_bic": diag.chosen[0].delta_bic if diag.chosen else None,
-               "score": diag.chosen[0].score if diag.chosen else None,
-               "size": diag.chosen[0].size if diag.chosen else None,
-               "residual_before": diag.sse_before,
-               "residual_after": report["residual_total"]["after"],
-               "runner_up": best.effect if best is not None else None,
-               "applied": report["applied"]}
-    return summary
+    first = kept[0] if kept else None
+    best = loop.rounds[0].best if loop.rounds else None
+    return {"effect": ",".join(report["decision"]) or "none",
+            "delta_bic": first.delta_bic if first else None,
+            "score": first.score if first else None,
+            "size": first.size if first else None,
+            "steps": len(loop.steps),
+            "unexplained": loop.unexplained.pattern if loop.unexplained else None,
+            "residual_before": report["residual_total"]["before"],
+            "residual_after": report["residual_total"]["after"],
+            "runner_up": best.effect if best is not None else None,
+            "applied": report["applied"]}
 
 
 STAGE = StageSpec("diagnose", Options, inputs, run, uses_model=frozenset({"input", "state"}))

@@ -20,7 +20,7 @@ from typing import Optional
 import numpy as np
 from pydantic import Field, field_validator
 
-from r2s.scene_model import corrected_input
+from r2s.scene_model import corrected_camera, corrected_input
 from r2s.errors import InputError, StageError
 from r2s.geometry.sdf import SdfGrid, compute_sdf
 from r2s.geomopt.free_space import ObservedView, observed_view
@@ -28,7 +28,7 @@ from r2s.geomopt.optimise import GeomParams, optimise_poses
 from r2s.geomopt.plot import loss_plot
 from r2s.geomopt.problem import build_problem
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json
-from r2s.io.input_scene import load_input
+from r2s.io.input_scene import load_camera, load_input
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import GEOMOPT_LOSS_FILE, ScenePaths
 from r2s.io.sdf_io import load_sdf, read_sdf_meta, save_sdf
@@ -50,6 +50,7 @@ class Options(StageOptions):
     lambda_anchor: float = Field(1.0, ge=0, description="weight of the pose anchor to the init pose")
     sigma_translation_m: float = Field(0.02, gt=0, description="translation that costs 1 in the anchor (m)")
     sigma_rotation_m: float = Field(0.01, gt=0, description="rotation, as displacement of the farthest point, that costs 1 (m)")
+    anchor_sideways_ratio: float = Field(4.0, ge=1, description="image-space anchor: a move across the camera's viewing ray costs this many times more per metre than one along it (1: isotropic; docs/observation.md)")
     top_k: int = Field(10, ge=1, description="K of the TopK-min contact term")
     samples: int = Field(2000, ge=50, description="surface samples per object")
     sdf_resolution: int = Field(128, ge=8, le=512, description="SDF voxels per axis (the most per axis when sdf_voxel_size_m is set)")
@@ -76,6 +77,7 @@ class Options(StageOptions):
                           lambda_contact=self.lambda_contact, lambda_anchor=self.lambda_anchor,
                           sigma_translation_m=self.sigma_translation_m,
                           sigma_rotation_m=self.sigma_rotation_m, top_k=self.top_k,
+                          anchor_sideways_ratio=self.anchor_sideways_ratio,
                           contact_rotates=self.contact_rotates,
                           support_vertical=self.support_vertical,
                           lambda_free_space=self.lambda_free_space,
@@ -87,6 +89,8 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
     found = [paths.stage_dir("init"), paths.stage_dir("graph")]
     if options.lambda_free_space > 0:
         found += [paths.camera, paths.depth_png, paths.depth_npy, paths.masks]
+    elif options.anchor_sideways_ratio != 1.0:
+        found += [paths.camera]
     return found
 
 
@@ -181,6 +185,9 @@ def run(ctx: StageContext) -> dict:
                             all_supporters=opts.all_supporters, gravity=np.asarray(state.gravity))
     if opts.lambda_free_space > 0:
         problem.view = _view(paths, ids, ctx.manifest.model)
+    if opts.anchor_sideways_ratio != 1.0 and paths.camera.is_file():
+        camera = corrected_camera(load_camera(paths.camera)[0], ctx.manifest.model)
+        problem.camera_position_m = np.asarray(camera.world_from_camera, dtype=float)[:3, 3]
 
     def progress(message: str, fraction: float) -> None:
         ctx.progress(message, 0.5 + 0.5 * fraction)

@@ -1,17 +1,13 @@
 """The ``physopt`` stage: make the reconstructed scene stay at rest in simulation.
 
-Objects are processed root to leaves along the contact graph (parents fixed while a child
-is optimised). Each object's pose, COM (kept inside the shape), mass (bounded around
-volume x density) and friction (bounded to a plausible range) are optimised through the
-differentiable simulator where it is available; then a verification pass re-simulates the
-whole scene in PyBullet with the export's collision geometry, and objects that still move
-are revisited with their neighbours (more friction within bounds, then letting the engine
-settle them into the nearest rest state) until the scene is stable or the budget runs out.
-Every change is recorded per object with its reason in ``physopt/log.json``.
+Objects are optimised root to leaves along the contact graph through the differentiable
+simulator (pose, COM inside the shape, friction within bounds), then the whole scene is
+checked in PyBullet with the export's collision geometry and what still moves is repaired,
+first within the observation tolerance of where each object was seen (docs/physopt.md).
+Every change is recorded per object with its reason in ``physopt/log.json``; objects left
+beyond the tolerance are flagged.
 
-The algorithm lives in :mod:`r2s.physopt` (parameters, the differentiable per-object step,
-the PyBullet rounds); this module reads the state, calls it and writes the result.
-"""
+The algorithm lives in :mod:`r2s.physopt`; this module reads, calls it and writes."""
 
 from __future__ import annotations
 
@@ -32,12 +28,11 @@ from r2s.io.paths import PHYSOPT_LOG_FILE, ScenePaths
 from r2s.io.state import SceneState, read_state, write_state
 from r2s.physopt.hierarchy import (descendants, lowest_points_m, order_root_to_leaves,
                                    parents_from_graph)
-from r2s.physopt.object_opt import optimise_objects
-from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, displacement_flags
+from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, seen_poses
 from r2s.physopt.params import initial_params, keep_previous
-from r2s.physopt.repair import depenetrate_scene, verify_and_repair, world_factory
+from r2s.physopt.solve import physopt_provenance, solve_scene
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
-from r2s.physical.provenance import com_provenance, friction_provenance, user_entries
+from r2s.physical.provenance import user_entries
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.scene_model import corrected_state
 
@@ -63,11 +58,6 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
     convex_method: ConvexMethod = Field(DEFAULT_CONVEX.method,
                                         description="Convex decomposition: vhacd or coacd "
                                                     "(same as export).")
-    observation_tolerance_m: float = Field(
-        0.02, gt=0, description="An object that ends farther than this from its init pose "
-                                "(where it was seen) is flagged, not silently moved, m.")
-    observation_tolerance_deg: float = Field(
-        15.0, gt=0, description="... or turned more than this from its init pose, degrees.")
     convex_threshold: float = Field(DEFAULT_CONVEX.threshold, gt=0,
                                     description="CoACD threshold, convex_method=coacd only "
                                                 "(same as export).")
@@ -116,51 +106,15 @@ def run(ctx: StageContext) -> dict:
         params = keep_previous(params, read_state(paths.stage_dir("physopt")), rerun)
         log["only"] = {"object": opt.only, "rerun": sorted(rerun)}
 
-    make_world = world_factory(pieces, state, order, opt)
-    ctx.progress("depenetration", 0.1)
-    params = depenetrate_scene(make_world, params, order, log)
-    if opt.use_diffsim:
-        free = [i for i in order if params[i].movable]
-        params = optimise_objects(params, meshes, state, free, opt, log, ctx.progress)
-    params, final = verify_and_repair(make_world, params, order, [o.id for o in state.objects],
-                                      opt, log, ctx.progress)
-    flags = _observation_flags(paths, state, params, meshes, opt, ctx.manifest.model)
-    log["observation_flags"] = {str(i): reason for i, reason in flags.items()}
+    solved = solve_scene(params, pieces, meshes, state, order,
+                         seen_poses(paths, state, ctx.manifest.model), opt, log, ctx.progress)
+    params, final, flags = solved.params, solved.drift, solved.flags
     _write(ctx, paths.stage_dir(src), state, params, final, log, flags)
     ctx.progress("done", 1.0)
     return {"source": src, "objects": len(state.objects),
             "still_moving": len(opt.moving(final)), "rounds": len(log["rounds"]) - 1,
             "flagged_objects": len(flags),
             "warnings": [f"object {i}: {reason}" for i, reason in sorted(flags.items())]}
-
-
-def _observation_flags(paths: ScenePaths, state: SceneState, params: dict, meshes: dict,
-                       opt: Options, model: dict) -> dict[int, str]:
-    """Objects the rounds left farther from their init pose than the tolerance (id -> why);
-    the init pose is where the object was seen (the source state's without init/)."""
-    seen = state
-    if (paths.stage_dir("init") / "state.json").is_file():
-        seen = corrected_state(read_state(paths.stage_dir("init")), model)
-    flags, _ = displacement_flags(
-        {o.id: o.pose for o in seen.objects},
-        {i: p.world_from_object for i, p in params.items()},
-        {i: m.centroid for i, m in meshes.items()},
-        opt.observation_tolerance_m, opt.observation_tolerance_deg)
-    return flags
-
-
-def _provenance(p, notes: list, opt) -> dict:
-    """Where the physopt mass, friction and COM came from (r2s.physical.provenance)."""
-    raised = any("friction" in n and "->" in n for n in notes)
-    mass = p.mass_provenance
-    if abs(p.mass_kg - p.nominal_mass_kg) > 1e-9 * p.nominal_mass_kg:
-        mass = {"source": "optimised", "nominal_kg": p.nominal_mass_kg, "prior": mass}
-    return {"mass": mass,
-            "friction": friction_provenance(p.friction, user=p.user_friction,
-                                            initial=opt.friction_init,
-                                            bounds=tuple(opt.friction_bounds),
-                                            raised_for_stability=raised),
-            "com": com_provenance(p.com_in_object, p.centroid_in_object)}
 
 
 def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, final: dict,
@@ -175,7 +129,9 @@ def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, fi
         data.update(mesh=f"meshes/{o.id}.glb", world_from_object=p.world_from_object.tolist(),
                     mass_kg=p.mass_kg, com_in_object=[float(x) for x in p.com_in_object],
                     friction=p.friction,
-                    provenance=_provenance(p, log["objects"][o.id], ctx.options),
+                    provenance=physopt_provenance(p, log["objects"][o.id],
+                                                  ctx.options.friction_init,
+                                                  ctx.options.friction_bounds),
                     physopt_drift_m=final[o.id][0],
                     physopt_drift_deg=final[o.id][1])
         if o.id in flags:

@@ -37,7 +37,7 @@ from r2s.io.paths import ScenePaths
 from r2s.synth import appearance, camera, catalog, depth_noise, physics, placement, priors, \
     realistic
 from r2s.synth.collision import default_cache_dir, prime_scene_cache
-from r2s.synth.effects import Effects, parse_effects
+from r2s.synth.effects import Effects, distorted_frame, lens_coefficients, parse_effects
 from r2s.synth.files import depth_png, write_png, write_textured_obj
 from r2s.synth.options import SynthOptions
 from r2s.synth.placement import Placed
@@ -225,6 +225,7 @@ def synthesize(out_dir: Path, options: SynthOptions,
                        _table_visual(support, rngs["texture"], work), K, true_pose,
                        options.width, options.height, _lighting(rngs["camera"]))
         n = len(placed.bodies)
+        frame = distorted_frame(frame, K, effects)
         realism_record: dict = {}
         if options.depth_model == "default" and options.mask_model == "exact":
             obs = _observe(frame, K, options, effects, rngs["noise"], n)
@@ -250,6 +251,8 @@ def synthesize(out_dir: Path, options: SynthOptions,
             injected["depth_scale"] = {"value": effects.depth_scale}
         if effects.depth_offset_m is not None:
             injected["depth_offset_m"] = {"value": effects.depth_offset_m}
+        if lens_coefficients(effects) is not None:
+            injected["lens_distortion"] = dict(zip(("k1", "k2"), lens_coefficients(effects)))
         if effects.friction is not None:
             injected["friction"] = {"value": effects.friction, "objects": "all"}
         if tilt_record:

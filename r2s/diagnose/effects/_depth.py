@@ -7,7 +7,7 @@ from dataclasses import replace
 import numpy as np
 
 from r2s.diagnose.data import Residuals
-from r2s.diagnose.depth_model import (corrected_registration, corrected_support, correct_depth,
+from r2s.diagnose.effects._depth_model import (corrected_registration, corrected_support, correct_depth,
                                       fit_bias)
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
 from r2s.io.input_scene import InputScene
@@ -26,6 +26,8 @@ class DepthBiasEffect(Effect):
     """``z_observed = s * z_true + o``; which of ``s``, ``o`` are free is per instance."""
 
     level = "input"
+    evidence_block = "registration"
+    interacts_with = frozenset({"camera_rotation", "table_tilt", "lens_distortion"})
 
     def __init__(self, name: str, fit_scale: bool, fit_offset: bool, preference: int):
         self.name = name

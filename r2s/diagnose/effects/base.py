@@ -22,7 +22,7 @@ from typing import Literal, Optional
 
 import numpy as np
 
-from r2s.diagnose.blocks import blocks_of, total_n, total_sse
+from r2s.diagnose.stats.blocks import blocks_of, total_n, total_sse
 from r2s.diagnose.data import Residuals
 from r2s.io.input_scene import Camera, InputScene
 from r2s.io.state import SceneState
@@ -60,6 +60,13 @@ class EffectFit:
     identifiable: bool = True
     note: str = ""
     penalty: float = 0.0
+    noise_bar: Optional[float] = None
+    """Explained SSE that noise alone reaches (:mod:`r2s.diagnose.stats.noise`; None: not
+    measured for this effect). The effect is supported only above it."""
+
+    @property
+    def above_noise(self) -> bool:
+        return self.noise_bar is None or self.explained_sse > self.noise_bar
 
     @property
     def explained_sse(self) -> float:
@@ -84,7 +91,8 @@ class EffectFit:
                 "explained_sse": self.explained_sse, "sse_before": self.sse_before,
                 "sse_after": self.residual_sse_after, "n_params": self.n_params,
                 "n_obs": self.n_obs, "size": self.size, "size_unit": self.size_unit,
-                "params": self.params, "note": self.note}
+                "params": self.params, "note": self.note, "noise_bar": self.noise_bar,
+                "above_noise": self.above_noise}
 
 
 def not_identifiable(name: str, res: Residuals, note: str) -> EffectFit:
@@ -118,6 +126,9 @@ class Effect:
     preference : tie-break among effects that explain the data equally (lower first).
     penalty : prior penalty in BIC units (``-2 ln prior odds``): how much more evidence it
         needs than the others, for an effect whose wrong application does harm.
+    evidence_block : the block its evidence comes from when noise alone can be redrawn
+        there ("registration"), so that a noise bar is measured for it; None otherwise.
+    interacts_with : effects whose fits change each other's (refitted jointly).
     """
 
     name: str = ""
@@ -126,6 +137,8 @@ class Effect:
     level: Literal["input", "state"] = "state"
     preference: int = 50
     penalty: float = 0.0
+    evidence_block: Optional[str] = None
+    interacts_with: frozenset = frozenset()
 
     def fit(self, residuals: Residuals) -> EffectFit:
         raise NotImplementedError
@@ -150,3 +163,28 @@ class Effect:
     def describe(self, params: dict) -> str:
         """One line for the report."""
         return f"{self.name} {params}"
+
+
+class PerObjectEffect(Effect):
+    """An effect with one entry per object: ``params = {"objects": {"<id>": entry}}``.
+
+    Applying it sets each listed object's value with :meth:`apply_entry`; composing keeps
+    the old entries and lets the new ones replace those of the same objects.
+    """
+
+    def apply_entry(self, obj, entry: dict) -> None:
+        """Set the effect's value on one state object from its entry (in place)."""
+        raise NotImplementedError
+
+    def apply_to_state(self, state: SceneState, params: dict) -> SceneState:
+        new = state.model_copy(deep=True)
+        for obj in new.objects:
+            entry = params.get("objects", {}).get(str(obj.id))
+            if entry is not None:
+                self.apply_entry(obj, entry)
+        return new
+
+    def compose(self, old: dict, new: dict) -> dict:
+        objs = dict(old.get("objects", {}))
+        objs.update(new.get("objects", {}))
+        return {"objects": objs}

@@ -14,7 +14,7 @@ import numpy as np
 
 from r2s.diagnose.data import Residuals
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
-from r2s.diagnose.gravity import angle_axis, correction_to_level
+from r2s.diagnose.effects._gravity import angle_axis, correction_to_level
 from r2s.io.input_scene import Camera, InputScene, ObjectSpec
 from r2s.io.state import SceneState
 
@@ -23,12 +23,9 @@ class CameraRotation(Effect):
     name = "camera_rotation"
     n_params = 2
     level = "input"
-    preference = 21
-    penalty = 20.0
-    """A wrong camera correction turns every object about the camera centre (on a tilted
-    table: centroid error 3.5 -> 20 mm in the benchmark) while a wrong ``table_tilt``
-    changes no pose, and a reconstruction's imperfections make it steadier under gravity
-    normal to the table either way; so the physical evidence must be clear."""
+    preference = 19
+    penalty = 0.0
+    interacts_with = frozenset({"depth_scale", "depth_offset", "depth_bias"})
     signature = (
         "The support plane's normal, fitted in the declared world frame, is tilted away "
         "from the declared up by a few degrees, and in the rollout objects move downhill "
@@ -105,10 +102,12 @@ def level_world(residuals: Residuals, corr: np.ndarray) -> Residuals:
 
 def slope_explained(phys, level_motion: dict) -> dict:
     """The rollout under level gravity, credited only where the slope alone explains the
-    difference: an object that still moves under level gravity, or touches one that does,
-    is moving because the reconstruction is imperfect (a collapsing neighbour, a wrong
-    shape), which is no evidence about the camera; it keeps its declared-gravity motion."""
-    unexplained = phys.moving(level_motion)
+    difference. An object that moves under both gravities, or touches one that does, moves
+    because the reconstruction is imperfect (a collapsing neighbour, a wrong shape): no
+    evidence either way, it keeps its declared-gravity motion. The rest count both ways:
+    moving under the declared gravity and resting when levelled is evidence for the camera,
+    resting under the declared gravity and moving when levelled evidence for a tilted table."""
+    unexplained = phys.moving(level_motion) & phys.moving(phys.motion)
     out = {}
     for obj_id, m in level_motion.items():
         obj = phys.objects.get(obj_id)

@@ -14,10 +14,9 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from r2s.diagnose.blocks import blocks_of, interaction_block, total_sse
+from r2s.diagnose.stats.blocks import blocks_of, interaction_block, total_sse
 from r2s.diagnose.data import InteractionData, PhysicsModel, Residuals
-from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
-from r2s.io.state import SceneState
+from r2s.diagnose.effects.base import EffectFit, PerObjectEffect, make_fit, not_identifiable
 
 FRICTION_RANGE = (0.05, 2.5)
 """Search range of a body's friction coefficient."""
@@ -27,7 +26,7 @@ was seen to tilt tumbles where it slid (or the reverse): its push says nothing a
 friction."""
 
 
-class Friction(Effect):
+class Friction(PerObjectEffect):
     name = "friction"
     n_params = 1
     level = "state"
@@ -96,18 +95,8 @@ class Friction(Effect):
         return make_fit(self.name, residuals, after, params, self.n_params * len(kept), size,
                         "", note=self.describe(params))
 
-    def apply_to_state(self, state: SceneState, params: dict) -> SceneState:
-        new = state.model_copy(deep=True)
-        for obj in new.objects:
-            entry = params.get("objects", {}).get(str(obj.id))
-            if entry is not None:
-                obj.friction = float(entry["friction"])
-        return new
-
-    def compose(self, old: dict, new: dict) -> dict:
-        objs = dict(old.get("objects", {}))
-        objs.update(new.get("objects", {}))
-        return {"objects": objs}
+    def apply_entry(self, obj, entry: dict) -> None:
+        obj.friction = float(entry["friction"])
 
     def describe(self, params: dict) -> str:
         parts = [f"object {i}: friction {e['friction']:.2f}"

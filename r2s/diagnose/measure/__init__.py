@@ -1,3 +1,4 @@
-"""Measuring the residuals on loaded data: prior scale (:mod:`.scale_fit`), PyBullet
-rollouts and contacts (:mod:`.physics`), pushes (:mod:`.interaction`), and all groups of a
-scene (:mod:`.observe`)."""
+"""Measuring the residuals: reading a scene directory and everything it needs
+(:mod:`.scene_dir`), the ground-truth errors (:mod:`.gt_errors`), prior scale
+(:mod:`.scale_fit`), PyBullet rollouts and contacts (:mod:`.physics`), pushes
+(:mod:`.interaction`), and all residual groups from loaded data (:mod:`.observe`)."""

@@ -18,10 +18,12 @@ from scipy import ndimage
 
 from r2s.console import ProgressFn, silent_progress
 from r2s.diagnose.data import (DepthMapData, InteractionData, PhysObject, PhysicsData,
-                               PhysicsModel, RegistrationData, ScaleObs, SupportData)
+                               PhysicsModel, RegistrationData, ScaleObs, SupportData,
+                               TableShapeData)
 from r2s.diagnose.measure.interaction import Push, simulate_push, simulate_push_motion
 from r2s.diagnose.measure.physics import (BodySpec, WorldSpec, rollout_motion, support_contacts,
                                           write_pieces)
+from r2s.diagnose.stats.noise import scale_noise_level
 from r2s.diagnose.measure.scale_fit import SurfaceModel, fit_prior_scale, free_space
 from r2s.geometry.camera import backproject, camera_center
 from r2s.geometry.convex_cache import cached_convex_decomposition
@@ -90,19 +92,19 @@ def fit_quality(inp: InputScene, obj: ObjectModel, seed: int = 0) -> FitQuality:
 
 
 def registration_residual(qualities: dict[int, FitQuality], scale_sigma: float,
-                          min_fitness: float) -> RegistrationData:
-    """Per-object prior scales. The noise level is the larger of ``scale_sigma`` (a floor)
-    and the scales' own spread (1.4826 x median absolute deviation, so that one
-    misregistered object does not hide the rest): priors err in size independently, a
-    depth bias moves them all together, so the spread measures the priors' error."""
+                          min_fitness: float, prior_scale_sigma: float = 0.02,
+                          prior_scale_dof: float = 4.0) -> RegistrationData:
+    """Per-object prior scales. The noise level is measured on them, pooled with a prior
+    spread (:func:`r2s.diagnose.stats.noise.scale_noise_level`, ``scale_sigma`` its floor):
+    priors err in size independently, a depth bias moves them all together, so their
+    spread measures the priors' error."""
     objs = tuple(q.scale_obs for _, q in sorted(qualities.items()) if q.scale_obs is not None)
     data = RegistrationData(objects=objs, scale_sigma=scale_sigma, min_fitness=min_fitness)
     logs = np.log([o.scale for o in data.used()])
-    if len(logs) >= 3:
-        spread = float(1.4826 * np.median(np.abs(logs - np.median(logs))))
-        data = RegistrationData(objects=objs, scale_sigma=max(scale_sigma, spread),
-                                min_fitness=min_fitness)
-    return data
+    prior = (prior_scale_sigma, prior_scale_dof)
+    sigma, dof = scale_noise_level(logs, scale_sigma, *prior)
+    return RegistrationData(objects=objs, scale_sigma=sigma, min_fitness=min_fitness,
+                            scale_floor=scale_sigma, noise_dof=dof, noise_prior=prior)
 
 
 def support_residual(inp: InputScene, gravity: np.ndarray, sigma_rad: float,
@@ -130,6 +132,29 @@ def support_residual(inp: InputScene, gravity: np.ndarray, sigma_rad: float,
                        camera_center=centre, n_points=int(plane.inliers.sum()),
                        points_camera=inl @ camera_from_world[:3, :3].T + camera_from_world[:3, 3],
                        world_from_camera=np.asarray(inp.camera.world_from_camera))
+
+
+def table_shape_residual(inp: InputScene, sigma_m: float, max_points: int = 20000,
+                         seed: int = 0) -> Optional[TableShapeData]:
+    """Every table pixel (mask 0) with a reading, back-projected into the camera frame
+    (a seeded subsample), with its grey level."""
+    mask = (inp.masks == 0) & np.isfinite(inp.depth_m) & (inp.depth_m > 0)
+    rows, cols = np.nonzero(mask)
+    if len(rows) < 100:
+        return None
+    if len(rows) > max_points:
+        pick = np.sort(np.random.default_rng(seed).choice(len(rows), max_points, replace=False))
+        rows, cols = rows[pick], cols[pick]
+    K = np.asarray(inp.camera.K, dtype=np.float64)
+    z = inp.depth_m[rows, cols].astype(np.float64)
+    x = (cols - K[0, 2] - K[0, 1] * (rows - K[1, 2]) / K[1, 1]) / K[0, 0]
+    y = (rows - K[1, 2]) / K[1, 1]
+    pts = np.stack([x * z, y * z, z], axis=1)
+    grey = None
+    if inp.rgb is not None and np.asarray(inp.rgb).ndim == 3:
+        grey = np.asarray(inp.rgb, dtype=np.float64)[rows, cols].mean(axis=1) / 255.0
+    return TableShapeData(points_camera=pts, K=K, width=int(inp.camera.width),
+                          height=int(inp.camera.height), grey=grey, sigma_m=sigma_m)
 
 
 def depth_residual_map(inp: InputScene, objects: list[ObjectModel],

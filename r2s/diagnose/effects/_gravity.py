@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from r2s.diagnose.blocks import tilt_vector
+from r2s.diagnose.stats.blocks import tilt_vector
 
 
 def correction_to_level(up: np.ndarray, normal: np.ndarray, pivot: np.ndarray) -> np.ndarray:
@@ -27,3 +27,4 @@ def angle_axis(rot: np.ndarray) -> tuple[float, np.ndarray]:
     angle = float(np.linalg.norm(vec))
     axis = vec / angle if angle > 1e-12 else np.array([0.0, 0.0, 1.0])
     return float(np.degrees(angle)), axis
+

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from r2s.diagnose.blocks import tangent_frame
+from r2s.diagnose.stats.blocks import tangent_frame
 
 
 def _nearest_on_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -15,6 +15,8 @@ Blocks:
   magnitudes over the rollout.
 - ``interaction``: per observed object, the 3 components of predicted minus observed
   displacement of a push.
+- ``table_shape``: per image tile, the mean distance of the table points to one plane
+  fitted to all of them (:mod:`r2s.diagnose.stats.table_shape`).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from r2s.diagnose.data import (InteractionData, PhysicsData, RegistrationData, Residuals,
-                               SupportData)
+                               SupportData, TableShapeData)
 
 
 @dataclass(frozen=True)
@@ -120,6 +122,14 @@ def interaction_block(data: InteractionData) -> Block:
                  np.full(len(vals), data.sigma_m), tuple(labels), unit="m", cap=6.0)
 
 
+def table_shape_block(data: TableShapeData) -> Block:
+    """Tile means of the table points' distance to their plane (m)."""
+    tiles = data.tiles()
+    return Block("table_shape", tiles.mean_m, np.full(len(tiles.mean_m), data.sigma_m),
+                 tuple(f"tile at ({u:.0f}, {v:.0f}) px" for u, v in tiles.centre_px),
+                 unit="m", cap=6.0)
+
+
 def blocks_of(res: Residuals) -> dict[str, Block]:
     """Every block the residuals allow, by name."""
     out: dict[str, Block] = {}
@@ -131,6 +141,8 @@ def blocks_of(res: Residuals) -> dict[str, Block]:
         out["physics"] = physics_block(res.physics)
     if res.interaction is not None and res.interaction.observed_m:
         out["interaction"] = interaction_block(res.interaction)
+    if res.table_shape is not None and len(res.table_shape.points_camera) >= 100:
+        out["table_shape"] = table_shape_block(res.table_shape)
     return out
 
 

@@ -16,7 +16,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from r2s.diagnose.blocks import blocks_of, tilt_vector
+from r2s.diagnose.stats.blocks import blocks_of, tilt_vector
 from r2s.diagnose.data import DepthMapData, PhysicsData, Residuals
 
 

@@ -23,12 +23,12 @@ import numpy as np
 
 from r2s.console import ProgressFn, silent_progress
 from r2s.diagnose.data import Residuals
-from r2s.diagnose.gt_errors import export_gt_errors, metrics_subset, state_gt_errors
+from r2s.diagnose.measure.gt_errors import export_gt_errors, metrics_subset, state_gt_errors
 from r2s.diagnose.measure.interaction import read_push
 from r2s.diagnose.measure.observe import (ObjectModel, depth_residual_map,
                                           interaction_residual, measure_fit_qualities,
                                           physics_residual, registration_residual,
-                                          support_residual, world_spec)
+                                          support_residual, table_shape_residual, world_spec)
 from r2s.scene_model import corrected_input, corrected_state
 from r2s.errors import StageError
 from r2s.interaction.track import track_objects
@@ -52,7 +52,10 @@ class MeasureSettings:
     """Noise levels and choices of the measurement (the stage's options)."""
 
     scale_sigma: float = 0.01
+    prior_scale_sigma: float = 0.02
+    prior_scale_dof: float = 4.0
     support_sigma_deg: float = 0.3
+    table_shape_sigma_m: float = 0.001
     min_fitness: float = 0.6
     max_rmse_m: float = 0.004
     physics_source: str = "auto"
@@ -169,7 +172,8 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
     progress("registration residual", 0.05)
     qualities = measure_fit_qualities(inp, init_objects,
                                       lambda m, f: progress(m, 0.05 + 0.35 * f))
-    registration = registration_residual(qualities, settings.scale_sigma, settings.min_fitness)
+    registration = registration_residual(qualities, settings.scale_sigma, settings.min_fitness,
+                                         settings.prior_scale_sigma, settings.prior_scale_dof)
     gravity = np.asarray(init_state.gravity, dtype=np.float64)
     support = support_residual(inp, gravity, float(np.radians(settings.support_sigma_deg)))
     progress("depth residual", 0.42)
@@ -200,6 +204,7 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
         physics = physics_residual(spec, np.asarray(state.gravity, dtype=np.float64), ok,
                                    settings.horizon_s, settings.sigma_translation_m,
                                    float(np.radians(settings.sigma_rotation_deg)), settings.cap)
+        physics = replace(physics, stage=stage)
         push_path = paths.interaction / PUSH_FILE
         if push_path.is_file():
             progress("simulating the observed push", 0.8)
@@ -223,7 +228,8 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
         elif paths.interaction.is_dir():
             notes.append(f"{paths.interaction}: no {PUSH_FILE}; the interaction is not used")
     residuals = Residuals(registration=registration, support=support, physics=physics,
-                          interaction=interaction, depth_map=depth_map, notes=tuple(notes))
+                          interaction=interaction, depth_map=depth_map, notes=tuple(notes),
+                          table_shape=table_shape_residual(inp, settings.table_shape_sigma_m))
     return Measured(residuals, stage, qualities, inp, keep)
 
 

@@ -16,9 +16,19 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from r2s.console import ProgressFn, silent_progress
-from r2s.diagnose.blocks import blocks_of, total_n, total_sse
+from r2s.diagnose.stats.blocks import blocks_of, total_n, total_sse
 from r2s.diagnose.data import Residuals
 from r2s.diagnose.effects.base import Effect, EffectFit
+from r2s.diagnose.stats.noise import noise_bar
+
+
+@dataclass(frozen=True)
+class NoiseBar:
+    """How the noise-only bar is measured: bootstrap draws, quantile, seed."""
+
+    draws: int = 200
+    quantile: float = 0.99
+    seed: int = 0
 
 
 @dataclass(frozen=True)
@@ -59,8 +69,11 @@ class Diagnosis:
 def order_fits(fits: list[EffectFit], effects: dict[str, Effect],
                tie_tolerance: float) -> Round:
     """Best score first; the fits tying with the best are ordered by preference."""
-    ok = sorted([f for f in fits if f.identifiable], key=lambda f: f.score)
-    rest = [f for f in fits if not f.identifiable]
+    ok = sorted([f for f in fits if f.identifiable and f.above_noise], key=lambda f: f.score)
+    # below the noise bar: what noise alone explains as well; ranked after the rest
+    weak = sorted([f for f in fits if f.identifiable and not f.above_noise],
+                  key=lambda f: f.score)
+    rest = weak + [f for f in fits if not f.identifiable]
     if not ok:
         return Round(tuple(rest))
     best = ok[0].score
@@ -75,11 +88,47 @@ def order_fits(fits: list[EffectFit], effects: dict[str, Effect],
     return Round(tuple(lead + tail + rest), ties)
 
 
+def fit_effect(effect: Effect, residuals: Residuals, penalty: float,
+               noise: NoiseBar | None = None, min_evidence: float = 2.0) -> EffectFit:
+    """One effect fitted, with its prior penalty and (for an effect whose evidence is in
+    the registration block and that passes the BIC bar) the explained SSE noise alone
+    reaches in this scene."""
+    fit = replace(effect.fit(residuals), penalty=float(penalty))
+    if (noise is not None and fit.identifiable and effect.evidence_block == "registration"
+            and fit.score < -min_evidence):
+        bar = noise_bar(lambda r: effect.fit(r).explained_sse, residuals, fit.n_params,
+                        noise.draws, noise.quantile, noise.seed)
+        fit = replace(fit, noise_bar=bar)
+    return fit
+
+
+def supported(fit: EffectFit | None, min_evidence: float) -> bool:
+    """Does the data support ``fit``: identifiable, above what noise alone explains, and
+    its score below ``-min_evidence``."""
+    return (fit is not None and fit.identifiable and fit.above_noise
+            and fit.score < -min_evidence)
+
+
+def rank(residuals: Residuals, effects: dict[str, Effect], tie_tolerance: float = 2.0,
+         penalties: dict[str, float] | None = None, noise: NoiseBar | None = None,
+         progress: ProgressFn = silent_progress, min_evidence: float = 2.0) -> Round:
+    """Fit every effect of ``effects`` to ``residuals`` and order them (one round)."""
+    fits = []
+    for k, (name, effect) in enumerate(effects.items()):
+        progress(f"fitting {name}", k / max(len(effects), 1))
+        fits.append(fit_effect(effect, residuals, (penalties or {}).get(name, effect.penalty),
+                               noise, min_evidence))
+    return order_fits(fits, effects, tie_tolerance)
+
+
 def diagnose(residuals: Residuals, effects: dict[str, Effect], max_effects: int = 1,
              min_evidence: float = 2.0, tie_tolerance: float = 2.0,
              progress: ProgressFn = silent_progress,
-             penalties: dict[str, float] | None = None) -> Diagnosis:
-    """Fit every effect, rank them, and keep up to ``max_effects`` supported ones.
+             penalties: dict[str, float] | None = None,
+             noise: NoiseBar | None = None) -> Diagnosis:
+    """Fit every effect, rank them, and keep up to ``max_effects`` supported ones, each
+    fitted to the residuals the previous ones are predicted to leave (no rerun: the
+    stage's loop reruns the stages and measures instead, when it can).
 
     ``penalties`` overrides effects' prior penalties (BIC units) by name.
     """
@@ -87,17 +136,12 @@ def diagnose(residuals: Residuals, effects: dict[str, Effect], max_effects: int 
     chosen: list[EffectFit] = []
     current = residuals
     for r in range(max_effects):
-        fits = []
-        names = [n for n in effects if n not in {c.effect for c in chosen}]
-        for k, name in enumerate(names):
-            progress(f"fitting {name}", (r + k / max(len(names), 1)) / max_effects)
-            fit = effects[name].fit(current)
-            penalty = (penalties or {}).get(name, effects[name].penalty)
-            fits.append(replace(fit, penalty=float(penalty)))
-        rnd = order_fits(fits, effects, tie_tolerance)
+        names = {n: e for n, e in effects.items() if n not in {c.effect for c in chosen}}
+        rnd = rank(current, names, tie_tolerance, penalties, noise,
+                   lambda m, f, r=r: progress(m, (r + f) / max_effects), min_evidence)
         rounds.append(rnd)
         best = rnd.best
-        if best is None or not best.identifiable or best.score >= -min_evidence:
+        if not supported(best, min_evidence):
             break
         chosen.append(best)
         current = best.residuals_after if best.residuals_after is not None else current

@@ -1,0 +1,69 @@
+"""physopt's whole pass on loaded data: depenetration, the per-object differentiable step,
+the PyBullet check-and-repair rounds bounded by the observation, and the displacement flags.
+
+Frames: poses are (4, 4) ``world_from_object``; ``seen`` are the poses the objects were seen
+at (init's state), ``centres_in_object`` (3,) each mesh's centroid in its object frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from r2s.console import ProgressFn
+from r2s.io.state import SceneState
+from r2s.physopt.object_opt import optimise_objects
+from r2s.physopt.observation_bound import ObservationBound, displacement_flags
+from r2s.physopt.params import Drift, Params
+from r2s.physopt.repair import depenetrate_scene, verify_and_repair, world_factory
+from r2s.physical.provenance import com_provenance, friction_provenance
+
+
+@dataclass(frozen=True)
+class Solved:
+    """params: the final per-object parameters; drift: id -> (m, deg) the judge-like check
+    measured last; flags: id -> why an object ended beyond the observation tolerance."""
+
+    params: Params
+    drift: Drift
+    flags: dict[int, str]
+
+
+def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
+                order: list[int], seen: dict[int, np.ndarray], opt, log: dict,
+                progress: ProgressFn) -> Solved:
+    """Run the physopt pass; ``opt`` holds the repair, diffsim and observation settings;
+    ``log`` (physopt/log.json's record) is extended in place."""
+    make_world = world_factory(pieces, state, order, opt)
+    progress("depenetration", 0.1)
+    params = depenetrate_scene(make_world, params, order, log)
+    if opt.use_diffsim:
+        free = [i for i in order if params[i].movable]
+        params = optimise_objects(params, meshes, state, free, opt, log, progress)
+    centres = {i: m.centroid for i, m in meshes.items()}
+    bound = ObservationBound(seen, centres, opt.observation_tolerance_m,
+                             opt.observation_tolerance_deg) if opt.observation_bound else None
+    params, drift = verify_and_repair(make_world, params, order, [o.id for o in state.objects],
+                                      opt, log, progress, bound)
+    flags, _ = displacement_flags(seen, {i: p.world_from_object for i, p in params.items()},
+                                  centres, opt.observation_tolerance_m,
+                                  opt.observation_tolerance_deg)
+    log["observation_flags"] = {str(i): reason for i, reason in flags.items()}
+    return Solved(params, drift, flags)
+
+
+def physopt_provenance(p, notes: list[str], friction_init: float,
+                       friction_bounds: tuple[float, float]) -> dict:
+    """Where one object's physopt mass, friction and COM came from (r2s.physical.provenance);
+    ``notes``: the object's entries in log.json (a friction raise reads "friction a -> b")."""
+    raised = any("friction" in n and "->" in n for n in notes)
+    mass = p.mass_provenance
+    if abs(p.mass_kg - p.nominal_mass_kg) > 1e-9 * p.nominal_mass_kg:
+        mass = {"source": "optimised", "nominal_kg": p.nominal_mass_kg, "prior": mass}
+    return {"mass": mass,
+            "friction": friction_provenance(p.friction, user=p.user_friction,
+                                            initial=friction_init,
+                                            bounds=tuple(friction_bounds),
+                                            raised_for_stability=raised),
+            "com": com_provenance(p.com_in_object, p.centroid_in_object)}
