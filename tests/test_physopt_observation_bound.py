@@ -78,3 +78,29 @@ def test_without_the_com_fix_only_a_move_beyond_tolerance_rests():
     assert settings.moving(drifts) == []
     assert bound.beyond({i: p.world_from_object for i, p in out.items()}) == [2]
     assert out[2].world_from_object[2, 3] == pytest.approx(0.03, abs=0.003)  # on the table
+
+
+@pytest.mark.slow
+def test_bounded_rounds_that_leave_it_moving_are_redone_without_the_bound():
+    # no COM fix and no in-round fallback: the bounded rounds cannot make the cube rest,
+    # so the pass redoes the rounds without the bound, which lands it on the table
+    from r2s.physopt.solve import repair_bounded_then_free
+
+    settings = RepairSettings(com_repair=False, fallback_severity=1e6)
+    poses, bounded_out, bounded_drifts, bound, _ = _overhang(settings)
+    assert settings.moving(bounded_drifts) == [2]
+    big, small = trimesh.creation.box([0.1] * 3), trimesh.creation.box([0.06] * 3)
+    params = {}
+    for i, mesh, mass in ((1, big, 0.6), (2, small, 0.13)):
+        lo, hi = inner_box(mesh.bounds)
+        params[i] = ObjectParams(world_from_object=poses[i], mass_kg=mass, nominal_mass_kg=mass,
+                                 com_in_object=np.zeros(3), friction=0.6, com_lo=lo, com_hi=hi)
+    state = SceneState(stage="init", support=SupportPlane(point=[0, 0, 0], normal=[0, 0, 1]),
+                       objects=[])
+    make_world = world_factory({1: [big], 2: [small]}, state, [1, 2], settings)
+    log = {"objects": {1: [], 2: []}, "rounds": []}
+    out, drifts = repair_bounded_then_free(make_world, params, [1, 2], [1, 2], settings, log,
+                                            lambda *a: None, bound)
+    assert settings.moving(drifts) == []
+    assert log["bounded_attempt_moving"] == [2]
+    assert out[2].world_from_object[2, 3] == pytest.approx(0.03, abs=0.003)  # on the table

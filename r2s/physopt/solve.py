@@ -7,6 +7,7 @@ at (init's state), ``centres_in_object`` (3,) each mesh's centroid in its object
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,13 +45,40 @@ def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
     centres = {i: m.centroid for i, m in meshes.items()}
     bound = ObservationBound(seen, centres, opt.observation_tolerance_m,
                              opt.observation_tolerance_deg) if opt.observation_bound else None
-    params, drift = verify_and_repair(make_world, params, order, [o.id for o in state.objects],
-                                      opt, log, progress, bound)
+    params, drift = repair_bounded_then_free(make_world, params, order,
+                                              [o.id for o in state.objects], opt, log,
+                                              progress, bound)
     flags, _ = displacement_flags(seen, {i: p.world_from_object for i, p in params.items()},
                                   centres, opt.observation_tolerance_m,
                                   opt.observation_tolerance_deg)
     log["observation_flags"] = {str(i): reason for i, reason in flags.items()}
     return Solved(params, drift, flags)
+
+
+def repair_bounded_then_free(make_world, params: Params, order: list[int],
+                              export_order: list[int], opt, log: dict, progress: ProgressFn,
+                              bound) -> tuple[Params, Drift]:
+    """The repair rounds bounded by the observation; where they leave objects moving, the
+    same rounds again from the same start without the bound, kept only if fewer objects
+    move after them (then ``log`` is the free attempt's, with ``bounded_attempt_moving``).
+    Stability never ends worse than without the bound; the observation is kept whenever
+    the bounded rounds suffice."""
+    start_log = copy.deepcopy(log)
+    bounded, drift = verify_and_repair(make_world, params, order, export_order, opt, log,
+                                       progress, bound)
+    still = opt.moving(drift)
+    if bound is None or not still:
+        return bounded, drift
+    free_log = copy.deepcopy(start_log)
+    free, free_drift = verify_and_repair(make_world, params, order, export_order, opt,
+                                         free_log, progress, None)
+    if len(opt.moving(free_drift)) >= len(still):
+        log["unbounded_attempt_moving"] = sorted(opt.moving(free_drift))
+        return bounded, drift
+    log.clear()
+    log.update(free_log)
+    log["bounded_attempt_moving"] = sorted(still)
+    return free, free_drift
 
 
 def physopt_provenance(p, notes: list[str], friction_init: float,
