@@ -24,12 +24,19 @@ import numpy as np
 from r2s.metrics.observation import LARGE_MASK_PX, SceneObservation, observe_scene
 
 
+SEEN_TOLERANCE_M = 0.02
+"""How far (m) an object may end from where it was seen (its init pose) before it is flagged;
+physopt's observation-bounded repairs and export's flags both default to it."""
+SEEN_TOLERANCE_DEG = 15.0
+"""... and how far it may turn, degrees."""
+
+
 @dataclass(frozen=True)
 class FlagTolerances:
     """When an object is flagged (lengths in metres, angles in degrees)."""
 
-    displacement_m: float = 0.02
-    displacement_deg: float = 15.0
+    displacement_m: float = SEEN_TOLERANCE_M
+    displacement_deg: float = SEEN_TOLERANCE_DEG
     min_iou: float = 0.5
     max_free_space: float = 0.5
 

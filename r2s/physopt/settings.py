@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from r2s.metrics.observation_check import SEEN_TOLERANCE_DEG, SEEN_TOLERANCE_M
 from r2s.physopt.params import Drift, moving_objects
 
 
@@ -47,11 +48,11 @@ class RepairSettings(BaseModel):
     rest_damping: float = Field(0.9, ge=0, le=1, description="Velocity loss per second in "
                                                              "that damped settling.")
     observation_tolerance_m: float = Field(
-        0.02, gt=0, description="An object that ends farther than this from its init pose "
+        SEEN_TOLERANCE_M, gt=0, description="An object that ends farther than this from its init pose "
                                 "(where it was seen) is flagged, not silently moved, m; the "
                                 "observation-bounded repairs keep objects within it.")
     observation_tolerance_deg: float = Field(
-        15.0, gt=0, description="... or turned more than this from its init pose, degrees.")
+        SEEN_TOLERANCE_DEG, gt=0, description="... or turned more than this from its init pose, degrees.")
     repair_tolerance_m: float = Field(
         0.005, gt=0, description="The first, tightest tier of the observation-bounded repairs: "
                                  "settling and rest may not carry an object farther than this "

@@ -23,7 +23,8 @@ from r2s.io.input_scene import load_camera, load_input
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import ScenePaths
 from r2s.io.state import read_state
-from r2s.metrics.observation_check import FlagTolerances, check_observation
+from r2s.metrics.observation_check import (SEEN_TOLERANCE_DEG, SEEN_TOLERANCE_M, FlagTolerances,
+                                          check_observation)
 from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.io.manifest import Manifest
@@ -41,9 +42,9 @@ class Options(StageOptions, BodyParams):
     observation: bool = Field(True, description="Measure each object against the input view "
                                                 "and write its 'observation' block (IoU, UCD, "
                                                 "displacement, flag) into scene.json.")
-    flag_displacement_m: float = Field(0.02, gt=0, description="Flag an object whose mesh "
+    flag_displacement_m: float = Field(SEEN_TOLERANCE_M, gt=0, description="Flag an object whose mesh "
                                        "centre is farther than this from its init pose, m.")
-    flag_displacement_deg: float = Field(15.0, gt=0, description="... or that turned more "
+    flag_displacement_deg: float = Field(SEEN_TOLERANCE_DEG, gt=0, description="... or that turned more "
                                          "than this from its init pose, degrees.")
     flag_min_iou: float = Field(0.5, ge=0, le=1, description="... or whose silhouette IoU is "
                                 "below this (masks of at least 1000 px).")
