@@ -88,7 +88,13 @@ def corrected_support(support: SupportData, scale: float, offset_m: float) -> Su
         return support
     p = np.asarray(support.points_camera, dtype=np.float64)
     z = p[:, 2:3]
-    q = p / z * (z - offset_m) / scale
+    return support_refitted(support, p / z * (z - offset_m) / scale)
+
+
+def support_refitted(support: SupportData, points_camera: np.ndarray) -> SupportData:
+    """``support`` with its table inliers replaced by ``points_camera`` (N, 3, camera frame)
+    and the plane refitted on them in the world (least squares; normal towards the camera)."""
+    q = np.asarray(points_camera, dtype=np.float64)
     t = np.asarray(support.world_from_camera, dtype=np.float64)
     w = q @ t[:3, :3].T + t[:3, 3]
     centre = w.mean(axis=0)

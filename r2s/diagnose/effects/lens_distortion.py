@@ -18,6 +18,7 @@ from scipy.optimize import minimize_scalar
 
 from r2s.diagnose.stats.blocks import table_shape_block
 from r2s.diagnose.data import Residuals, SupportData, TableShapeData
+from r2s.diagnose.effects._depth_model import support_refitted
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
 from r2s.geometry.lens import undistort_image, undistort_normalised
 from r2s.io.input_scene import InputScene
@@ -42,14 +43,7 @@ def undistorted_support(sup: SupportData, k1: float, k2: float = 0.0) -> Support
     """The support plane refitted on its inliers moved onto the undistorted rays."""
     if sup.points_camera is None or sup.world_from_camera is None:
         return sup
-    q = undistort_points(sup.points_camera, k1, k2)
-    t = np.asarray(sup.world_from_camera, dtype=np.float64)
-    w = q @ t[:3, :3].T + t[:3, 3]
-    centre = w.mean(axis=0)
-    normal = np.linalg.svd(w - centre, full_matrices=False)[2][2]
-    if normal @ (np.asarray(sup.camera_center) - centre) < 0:
-        normal = -normal
-    return replace(sup, normal=normal, point=centre, points_camera=q)
+    return support_refitted(sup, undistort_points(sup.points_camera, k1, k2))
 
 
 class LensDistortion(Effect):
