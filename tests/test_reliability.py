@@ -167,6 +167,36 @@ def test_second_writer_stops_with_one_line_naming_the_holder(tmp_path: Path):
     assert not (scene / "init").exists()
 
 
+SLOW_NAMING_HOLDER = textwrap.dedent("""
+    import fcntl, json, os, socket, sys, time
+    fd = os.open(os.path.join(sys.argv[1], ".r2s-lock"), os.O_RDWR | os.O_CREAT, 0o644)
+    os.ftruncate(fd, 0)
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    print("locked", flush=True)
+    time.sleep(0.5)  # the lock is held, the file still empty
+    os.pwrite(fd, json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
+                              "since": "now", "command": "slow"}).encode(), 0)
+    time.sleep(60)
+""")
+
+
+def test_refused_writer_names_a_holder_that_writes_its_name_late(tmp_path: Path):
+    """The holder takes the lock a moment before it writes the lock file (the race two
+    ``r2s run`` started together hit): the refused process still names it."""
+    scene = write_two_boxes(tmp_path / "scene")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    holder = subprocess.Popen([sys.executable, "-c", SLOW_NAMING_HOLDER, str(scene)],
+                              stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(SceneBusyError, match=f"written by pid {holder.pid} .*slow"):
+            with scene_lock(scene, wait_s=0):
+                pass
+    finally:
+        holder.kill()
+        holder.wait()
+
+
 def test_waiting_writer_gets_the_lock_when_the_holder_ends(tmp_path: Path):
     scene = write_two_boxes(tmp_path / "scene")
     holder = _hold_lock(scene, 1.5)

@@ -107,12 +107,22 @@ def _write_holder(fd: int, command: str) -> None:
     text = json.dumps({"pid": os.getpid(), "host": socket.gethostname(),
                        "since": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                        "command": command})
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, text.encode(), 0)
+    data = text.encode()
+    os.pwrite(fd, data, 0)  # write first, then cut: the file is never empty while held
+    os.ftruncate(fd, len(data))
+
+
+HOLDER_READ_WAIT_S = 2.0
+"""How long a refused process waits for the new holder to write its name into the lock file
+(the holder takes the lock a moment before it writes the file)."""
 
 
 def _describe_busy(scene_dir: Path) -> str:
+    deadline = time.monotonic() + HOLDER_READ_WAIT_S
     holder = read_holder(scene_dir / LOCK_NAME)
+    while holder is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+        holder = read_holder(scene_dir / LOCK_NAME)
     who = holder.describe() if holder is not None else "another process"
     return f"{scene_dir}: scene is being written by {who}"
 
