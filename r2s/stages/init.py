@@ -42,7 +42,8 @@ from r2s.geometry.free_space import view_constraint
 from r2s.geometry.mask_edges import foreign_rim_pixels
 from r2s.geometry.point_cleanup import object_point_mask
 from r2s.geometry.overlay import fit_overlay, render_instances
-from r2s.geometry.prior_refine import RefineOptions, refine_axis_scale
+from r2s.geometry.prior_refine import RefinedPose, RefineOptions, refine_axis_scale
+from r2s.geometry.prior_silhouette import SilhouetteFitOptions, fit_priors_to_view
 from r2s.geometry.plane import PlaneFit, fit_plane_ransac, signed_distance
 from r2s.geometry.registration import (IcpOptions, RegistrationResult, register_prior,
                                        surface_fit, voxel_downsample)
@@ -113,6 +114,16 @@ class Options(StageOptions):
     rest_on_support: bool = Field(False, description="With axis_scale: pull a prior whose "
                                   "bottom is within 20 mm of the support plane onto it (else "
                                   "only out of it).")
+    fit_view: bool = Field(True, description="After registration, fit each prior's pose "
+                           "and per-axis scale to its silhouette, depth, the free space "
+                           "around it and the support plane it is seen resting on "
+                           "(geometry/prior_silhouette.py).")
+    fit_view_scale_min: float = Field(0.82, gt=0, le=1, description="Smallest per-axis "
+                                      "scale of fit_view (relative to the prior).")
+    fit_view_scale_max: float = Field(1.22, ge=1, description="Largest per-axis scale of "
+                                      "fit_view.")
+    fit_view_evaluations: int = Field(900, ge=10, description="Cost evaluations per object "
+                                      "of fit_view.")
     completion_cell_m: float = Field(0.003, gt=0, description="Grid cell of the height-field "
                                      "completion of objects without a prior.")
     completion_hull_margin_px: float = Field(0.25, ge=0, description="Grow a completed "
@@ -205,8 +216,10 @@ def _checked_prior(spec: ObjectSpec, pts: np.ndarray, flags: list[str]) -> trime
 
 
 def _register(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, plane: PlaneFit,
-              o: Options, flags: list[str]) -> tuple[trimesh.Trimesh, np.ndarray, RegistrationResult]:
-    """The prior in its object frame (recentred, scaled, coloured) and its pose."""
+              o: Options, flags: list[str]
+              ) -> tuple[trimesh.Trimesh, RefinedPose, RegistrationResult]:
+    """The prior (its own frame), its registered pose (object frame: origin at the prior's
+    bounding-box centre; scale per axis) and the registration's result."""
     cam = scene.camera
     prior = _checked_prior(spec, pts, flags)
     view = view_constraint(cam.K, cam.world_from_camera, scene.depth_m, scene.masks == spec.id,
@@ -219,24 +232,44 @@ def _register(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, plane: Plane
                                 up=plane.normal, options=_icp_options(o))
     except ValueError as exc:
         raise StageError(f"object {spec.id}: registration failed ({exc})") from None
-    # object frame: the prior's axes, origin at its bounding-box centre, scale applied
     centre = 0.5 * (prior.vertices.min(axis=0) + prior.vertices.max(axis=0))
-    mesh = prior.copy()
-    mesh.apply_translation(-centre)
-    mesh.apply_scale(result.scale)
-    world_from_object = result.world_from_object.copy()
-    world_from_object[:3, 3] += world_from_object[:3, :3] @ (result.scale * centre)
+    pose = RefinedPose(world_from_object=result.world_from_object,
+                       axis_scale=np.full(3, result.scale), centre=centre, on_support=False)
     if o.axis_scale:
-        refined = refine_axis_scale(
+        pose = refine_axis_scale(
             prior, reg_pts, result.world_from_object, result.scale, cam.world_from_camera[:3, 3],
             view, (plane.point, plane.normal),
             RefineOptions(scale_bounds=(o.axis_scale_min, o.axis_scale_max), seed=o.seed,
                           support_one_sided=not o.rest_on_support, contact_m=0.02))
-        mesh, world_from_object = refined.object_mesh(prior)
-    if not has_appearance(mesh):
-        mesh = color_mesh_from_image(mesh, world_from_object, scene.rgb, scene.depth_m, cam.K,
-                                     cam.world_from_camera, scene.masks == spec.id)
-    return mesh, world_from_object, result
+    return prior, pose, result
+
+
+def _fit_priors(scene: InputScene, priors: dict[int, tuple[trimesh.Trimesh, RefinedPose]],
+                built: dict[int, tuple[trimesh.Trimesh, np.ndarray]], plane: PlaneFit,
+                o: Options) -> dict[int, tuple[trimesh.Trimesh, np.ndarray]]:
+    """Each prior's mesh (object frame, coloured) and pose, fitted to its view and kept out
+    of the other objects when ``fit_view`` (geometry/prior_silhouette.py); ``built`` holds
+    the completed objects' (mesh, pose)."""
+    cam = scene.camera
+    poses = {i: pose for i, (_, pose) in priors.items()}
+    if o.fit_view and priors:
+        fixed = {}
+        for i, (mesh, pose) in built.items():
+            fixed[i] = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+            fixed[i].apply_transform(pose)
+        fo = SilhouetteFitOptions(scale_bounds=(o.fit_view_scale_min, o.fit_view_scale_max),
+                                  max_evaluations=o.fit_view_evaluations)
+        fits = fit_priors_to_view(priors, fixed, cam.K, cam.world_from_camera, scene.depth_m,
+                                  scene.masks, (plane.point, plane.normal), fo)
+        poses = {i: f.pose for i, f in fits.items()}
+    out = {}
+    for i, pose in poses.items():
+        mesh, world_from_object = pose.object_mesh(priors[i][0])
+        if not has_appearance(mesh):
+            mesh = color_mesh_from_image(mesh, world_from_object, scene.rgb, scene.depth_m,
+                                         cam.K, cam.world_from_camera, scene.masks == i)
+        out[i] = (mesh, world_from_object)
+    return out
 
 
 def _complete(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, pix: np.ndarray,
@@ -279,6 +312,37 @@ def _png_bytes(image: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
+def _save_objects(scene: InputScene, observed: dict, built: dict, regs: dict, out: Path,
+                  o: Options, flags: list[str], table_extent_m: float
+                  ) -> tuple[list[ObjectState], list[trimesh.Trimesh]]:
+    """Write each object's mesh and observed points; its state entry and world-frame mesh."""
+    objects: list[ObjectState] = []
+    posed: list[trimesh.Trimesh] = []
+    for spec in scene.objects:
+        pts = observed[spec.id][0]
+        mesh, world_from_object = built[spec.id]
+        mesh_w = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+        mesh_w.apply_transform(world_from_object)
+        if spec.id in regs:
+            reg = regs[spec.id]
+            source, fitness, rmse, scale = "prior", reg.fitness, reg.rmse_m, reg.scale
+        else:
+            source, scale = "completed", 1.0
+            fitness, rmse = surface_fit(mesh_w, pts, o.icp_inlier_m, seed=o.seed)
+        flags += _result_flags(spec.id, float(fitness), mesh, table_extent_m)
+        save_mesh(mesh, out / "meshes" / f"{spec.id}.glb")
+        np.save(out / "points" / f"{spec.id}.npy", pts.astype(np.float32))
+        posed.append(mesh_w)
+        objects.append(ObjectState(
+            id=spec.id, label=spec.label, mesh=f"meshes/{spec.id}.glb",
+            world_from_object=world_from_object.tolist(), source=source,
+            icp_fitness=round(float(fitness), 6),
+            icp_rmse_m=float(rmse) if np.isfinite(rmse) else None, scale=float(scale),
+            observed_points=f"points/{spec.id}.npy", num_observed_points=int(len(pts)),
+        ))
+    return objects, posed
+
+
 def run(ctx: StageContext) -> dict:
     o: Options = ctx.options
     # the observation as the scene's model corrects it (depth bias, camera rotation kept by
@@ -300,38 +364,25 @@ def run(ctx: StageContext) -> dict:
     observed = {spec.id: _object_points(scene, spec.id, o, plane) for spec in scene.objects}
     flags: list[str] = list(scene.warnings)  # probably-wrong inputs and results, one line each
     table_extent_m = sanity.robust_extent_m(support)
-    objects: list[ObjectState] = []
-    posed: list[trimesh.Trimesh] = []
-    rmses: list[float] = []
     n = len(scene.objects)
+    priors: dict[int, tuple[trimesh.Trimesh, RefinedPose]] = {}
+    built: dict[int, tuple[trimesh.Trimesh, np.ndarray]] = {}
+    regs: dict[int, RegistrationResult] = {}
     for k, spec in enumerate(scene.objects):
-        ctx.progress(f"object {spec.id}", k / max(n, 1))
+        ctx.progress(f"object {spec.id}", 0.8 * k / max(n, 1))
         pts, pix = observed[spec.id]
         if spec.prior_mesh is not None:
-            mesh, world_from_object, reg = _register(scene, spec, pts, plane, o, flags)
-            source, fitness, rmse, scale = "prior", reg.fitness, reg.rmse_m, reg.scale
-            rmses.append(rmse)
+            prior, pose, regs[spec.id] = _register(scene, spec, pts, plane, o, flags)
+            priors[spec.id] = (prior, pose)
         else:
             others = [observed[j][0] for j in observed if j != spec.id]
-            mesh, world_from_object = _complete(
+            built[spec.id] = _complete(
                 scene, spec, pts, pix, np.concatenate(others) if others else None, plane, o)
-            source, scale = "completed", 1.0
-            mesh_w = mesh.copy()
-            mesh_w.apply_transform(world_from_object)
-            fitness, rmse = surface_fit(mesh_w, pts, o.icp_inlier_m, seed=o.seed)
-        flags += _result_flags(spec.id, float(fitness), mesh, table_extent_m)
-        save_mesh(mesh, out / "meshes" / f"{spec.id}.glb")
-        np.save(out / "points" / f"{spec.id}.npy", pts.astype(np.float32))
-        mesh_w = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
-        mesh_w.apply_transform(world_from_object)
-        posed.append(mesh_w)
-        objects.append(ObjectState(
-            id=spec.id, label=spec.label, mesh=f"meshes/{spec.id}.glb",
-            world_from_object=world_from_object.tolist(), source=source,
-            icp_fitness=round(float(fitness), 6),
-            icp_rmse_m=float(rmse) if np.isfinite(rmse) else None, scale=float(scale),
-            observed_points=f"points/{spec.id}.npy", num_observed_points=int(len(pts)),
-        ))
+    ctx.progress("fit priors to the view", 0.8)
+    built.update(_fit_priors(scene, priors, built, plane, o))
+    objects, posed = _save_objects(scene, observed, built, regs, out, o, flags,
+                                   table_extent_m)
+    rmses = [regs[i].rmse_m for i in regs]
 
     ctx.progress("overlay", 0.95)
     rendered = render_instances(posed, cam.K, cam.world_from_camera, cam.width, cam.height)
