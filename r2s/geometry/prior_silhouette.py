@@ -27,7 +27,8 @@ scaled prior through the pixels around the instance and scoring (all in pixels s
   constrain keeps the registration's scale; likewise the turn from the registered
   rotation, ``(angle / rotation_sigma_deg)^2``.
 
-Derivative-free (Powell, bounded), from the registered pose. Frames as in
+Derivative-free (a bounded compass search, :func:`_pattern_search`), from the
+registered pose. Frames as in
 :mod:`r2s.geometry.prior_refine`: world points are ``x = R (s * (p - c)) + t`` for prior
 points ``p`` and the prior's bounding-box centre ``c``; the result is a
 :class:`r2s.geometry.prior_refine.RefinedPose`.
@@ -41,7 +42,7 @@ from typing import Optional, Sequence
 import numpy as np
 import open3d as o3d
 import trimesh
-from scipy import ndimage, optimize
+from scipy import ndimage
 from scipy.spatial.transform import Rotation
 
 from r2s.geometry.camera import camera_center
@@ -64,7 +65,7 @@ class SilhouetteFitOptions:
     support_weight, others_weight, depth_weight : weights of those terms.
     max_rays : pixels ray cast per evaluation (a stride thins larger windows).
     window_pad_px : pixels around the mask and the registered prior's image.
-    max_evaluations : Powell's budget of cost evaluations.
+    max_evaluations : the search's budget of cost evaluations.
     contact_samples : surface samples (besides the hull's vertices) tested against others.
     contact_normaliser : see the ``others`` term.
     """
@@ -81,7 +82,7 @@ class SilhouetteFitOptions:
     depth_weight: float = 1.0
     max_rays: int = 20000
     window_pad_px: int = 20
-    max_evaluations: int = 900
+    max_evaluations: int = 400
     contact_samples: int = 600
     contact_normaliser: float = 5.0
 
@@ -97,6 +98,7 @@ class InstanceView:
     own : (h, w) bool, the instance's mask; care : (h, w) bool, the mask pixels the prior
         must cover (own without bleed).
     other_mask : (h, w) bool, pixels of other instances' masks.
+    outside_px : (h, w) distance (full-resolution pixels) to the nearest ``own`` pixel.
     outline_px : outline length of the mask (full-resolution pixels).
     """
 
@@ -107,6 +109,7 @@ class InstanceView:
     own: np.ndarray
     care: np.ndarray
     other_mask: np.ndarray
+    outside_px: np.ndarray
     window: tuple[int, int, int, int]
     stride: int
     outline_px: float
@@ -161,6 +164,7 @@ def instance_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndar
                         world_from_camera=np.asarray(world_from_camera, np.float64),
                         rays=rays, depth_m=depth[sl], own=own_full[sl], care=care_full[sl],
                         other_mask=(np.asarray(masks) > 0)[sl] & ~own_full[sl],
+                        outside_px=ndimage.distance_transform_edt(~own_full[sl]) * stride,
                         window=(r0, r1, c0, c1), stride=stride,
                         outline_px=float(max(outline.sum(), 1)))
 
@@ -195,14 +199,15 @@ class _Caster:
         self.origin = camera_center(view.world_from_camera)
         self.rays = view.rays.reshape(-1, 3)
         self.shape = view.rays.shape[:2]
+        self.buffer = np.empty((len(self.rays), 6), dtype=np.float32)
 
     def depth(self, R: np.ndarray, t: np.ndarray, s: np.ndarray) -> np.ndarray:
         """(h, w) camera depth of the prior posed by (R, t, s), NaN where missed."""
         A = (R / s[None, :]).T  # object-from-world linear part: diag(1/s) R^T
-        o = A @ (self.origin - t)
-        d = self.rays @ A.T
-        rays = np.concatenate([np.broadcast_to(o, d.shape), d], axis=1).astype(np.float32)
-        t_hit = self.scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        self.buffer[:, :3] = A @ (self.origin - t)
+        np.matmul(self.rays, A.T, out=self.buffer[:, 3:], casting="same_kind")
+        t_hit = self.scene.cast_rays(o3d.core.Tensor.from_numpy(self.buffer),
+                                    nthreads=1)["t_hit"].numpy()
         return np.where(np.isfinite(t_hit), t_hit, np.nan).reshape(self.shape)
 
 
@@ -220,8 +225,7 @@ def _silhouette_cost(model_depth: np.ndarray, view: InstanceView, cap_px: float,
     st = view.stride
     cost = 0.0
     if false_pos.any():
-        d_own = ndimage.distance_transform_edt(~view.own) * st
-        cost += float(np.minimum(d_own[false_pos], cap_px).sum())
+        cost += float(np.minimum(view.outside_px[false_pos], cap_px).sum())
     if missed.any():
         d_hit = ndimage.distance_transform_edt(~hit) * st if hit.any() else None
         cost += float(missed.sum()) * cap_px if d_hit is None else float(
@@ -350,6 +354,35 @@ class _Problem:
                            on_support=self.resting)
 
 
+def _pattern_search(cost, x0: np.ndarray, bounds: list[tuple[float, float]],
+                    max_evaluations: int, step_m: float = 0.004, min_step_m: float = 0.00025
+                    ) -> np.ndarray:
+    """Compass search: try +-step along each coordinate, keep going while a move lowers the
+    cost, halve the step when a sweep finds nothing (robust on a cost that is piecewise
+    constant at the pixel scale, unlike line searches). Returns the best x found."""
+    lo = np.array([b[0] for b in bounds])
+    hi = np.array([b[1] for b in bounds])
+    x, fx, used = np.array(x0, dtype=np.float64), cost(x0), 1
+    step = step_m
+    while step >= min_step_m and used < max_evaluations:
+        improved = False
+        for i in range(len(x)):
+            for sign in (1.0, -1.0):
+                while used < max_evaluations:
+                    trial = x.copy()
+                    trial[i] = np.clip(trial[i] + sign * step, lo[i], hi[i])
+                    if trial[i] == x[i]:
+                        break
+                    ft = cost(trial)
+                    used += 1
+                    if not ft < fx:
+                        break
+                    x, fx, improved = trial, ft, True
+        if not improved:
+            step /= 2.0
+    return x
+
+
 def fit_prior_to_view(mesh: trimesh.Trimesh, start: RefinedPose, view: InstanceView,
                       support: Optional[tuple[np.ndarray, np.ndarray]] = None,
                       others: Sequence[o3d.t.geometry.RaycastingScene] = (),
@@ -365,11 +398,7 @@ def fit_prior_to_view(mesh: trimesh.Trimesh, start: RefinedPose, view: InstanceV
     problem = _Problem(mesh, start, view, support, others, options)
     x0 = np.zeros(9)
     before = problem.score(x0)
-    res = optimize.minimize(problem, x0, method="Powell", bounds=problem.bounds(),
-                            options={"maxfev": options.max_evaluations, "xtol": 2e-4,
-                                     "ftol": 1e-4,
-                                     "direc": np.eye(9) * 0.002})
-    x = np.asarray(res.x, dtype=np.float64)
+    x = _pattern_search(problem, x0, problem.bounds(), options.max_evaluations)
     after = problem.score(x)
     if not after.total < before.total:
         x, after = x0, before

@@ -122,8 +122,12 @@ class Options(StageOptions):
                                       "scale of fit_view (relative to the prior).")
     fit_view_scale_max: float = Field(1.22, ge=1, description="Largest per-axis scale of "
                                       "fit_view.")
-    fit_view_evaluations: int = Field(900, ge=10, description="Cost evaluations per object "
+    fit_view_evaluations: int = Field(400, ge=10, description="Cost evaluations per object "
                                       "of fit_view.")
+    prior_fallback_iou: float = Field(0.5, ge=0, le=1, description="With fit_view: a prior "
+                                      "whose fitted silhouette IoU against its own mask "
+                                      "stays below this is replaced by the completion "
+                                      "from the observation (flagged).")
     completion_cell_m: float = Field(0.003, gt=0, description="Grid cell of the height-field "
                                      "completion of objects without a prior.")
     completion_hull_margin_px: float = Field(0.25, ge=0, description="Grow a completed "
@@ -246,12 +250,15 @@ def _register(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, plane: Plane
 
 def _fit_priors(scene: InputScene, priors: dict[int, tuple[trimesh.Trimesh, RefinedPose]],
                 built: dict[int, tuple[trimesh.Trimesh, np.ndarray]], plane: PlaneFit,
-                o: Options) -> dict[int, tuple[trimesh.Trimesh, np.ndarray]]:
+                o: Options) -> tuple[dict[int, tuple[trimesh.Trimesh, np.ndarray]],
+                                     dict[int, float]]:
     """Each prior's mesh (object frame, coloured) and pose, fitted to its view and kept out
-    of the other objects when ``fit_view`` (geometry/prior_silhouette.py); ``built`` holds
-    the completed objects' (mesh, pose)."""
+    of the other objects when ``fit_view`` (geometry/prior_silhouette.py), and the
+    silhouette IoU of each fit against its own mask (empty without ``fit_view``); ``built``
+    holds the completed objects' (mesh, pose)."""
     cam = scene.camera
     poses = {i: pose for i, (_, pose) in priors.items()}
+    ious: dict[int, float] = {}
     if o.fit_view and priors:
         fixed = {}
         for i, (mesh, pose) in built.items():
@@ -262,6 +269,7 @@ def _fit_priors(scene: InputScene, priors: dict[int, tuple[trimesh.Trimesh, Refi
         fits = fit_priors_to_view(priors, fixed, cam.K, cam.world_from_camera, scene.depth_m,
                                   scene.masks, (plane.point, plane.normal), fo)
         poses = {i: f.pose for i, f in fits.items()}
+        ious = {i: f.after.iou for i, f in fits.items()}
     out = {}
     for i, pose in poses.items():
         mesh, world_from_object = pose.object_mesh(priors[i][0])
@@ -269,7 +277,26 @@ def _fit_priors(scene: InputScene, priors: dict[int, tuple[trimesh.Trimesh, Refi
             mesh = color_mesh_from_image(mesh, world_from_object, scene.rgb, scene.depth_m,
                                          cam.K, cam.world_from_camera, scene.masks == i)
         out[i] = (mesh, world_from_object)
-    return out
+    return out, ious
+
+
+def _fallback_to_completion(scene: InputScene, observed: dict, built: dict, regs: dict,
+                            ious: dict[int, float], plane: PlaneFit, o: Options,
+                            flags: list[str]) -> None:
+    """Replace (in ``built``, dropping ``regs``) each prior whose fitted silhouette IoU is
+    below ``prior_fallback_iou`` by the completion from the observation, with a flag."""
+    specs = {spec.id: spec for spec in scene.objects}
+    for i, iou in sorted(ious.items()):
+        if iou >= o.prior_fallback_iou:
+            continue
+        pts, pix = observed[i]
+        others = [observed[j][0] for j in observed if j != i]
+        built[i] = _complete(scene, specs[i], pts, pix,
+                             np.concatenate(others) if others else None, plane, o)
+        regs.pop(i, None)
+        flags.append(f"object {i}: its prior does not fit what the camera saw (silhouette "
+                     f"IoU {iou:.2f} < {o.prior_fallback_iou:.2f}); completed from the "
+                     "observation instead")
 
 
 def _complete(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, pix: np.ndarray,
@@ -379,7 +406,9 @@ def run(ctx: StageContext) -> dict:
             built[spec.id] = _complete(
                 scene, spec, pts, pix, np.concatenate(others) if others else None, plane, o)
     ctx.progress("fit priors to the view", 0.8)
-    built.update(_fit_priors(scene, priors, built, plane, o))
+    fitted, ious = _fit_priors(scene, priors, built, plane, o)
+    built.update(fitted)
+    _fallback_to_completion(scene, observed, built, regs, ious, plane, o, flags)
     objects, posed = _save_objects(scene, observed, built, regs, out, o, flags,
                                    table_extent_m)
     rmses = [regs[i].rmse_m for i in regs]
