@@ -2,9 +2,10 @@
 from ray-cast views of boxes on a table at z = 0."""
 
 import numpy as np
+import pytest
 import trimesh
 
-from helpers_init import SynthObject, default_camera, pose, render_view
+from helpers_init import SynthObject, default_camera, pose, render_view, write_input_scene
 from r2s.geometry.prior_refine import RefinedPose
 from r2s.geometry.prior_silhouette import (fit_prior_to_view, fit_priors_to_view, image_box,
                                            instance_view, penetration_m, raycasting_scene)
@@ -97,3 +98,30 @@ def test_two_priors_too_wide_towards_each_other_are_shrunk_apart():
         assert mesh.extents[0] < 0.046 - 0.003
         assert np.linalg.norm(mesh.bounds.mean(axis=0) - centres[i]) < 0.003
         assert abs(mesh.bounds[0, 2]) < 0.002
+
+
+@pytest.mark.slow
+def test_init_replaces_a_prior_that_does_not_fit_the_view_by_the_completion(tmp_path):
+    from r2s.io.paths import ScenePaths
+    from r2s.io.state import read_state
+    from r2s.runner.base import run_stage
+    from r2s.stages.init import STAGE, Options
+
+    # a flat book (14 x 10 x 3 cm) given a rod as its prior, and a cube given its own shape
+    book = trimesh.creation.box((0.14, 0.10, 0.03))
+    rod = trimesh.creation.cylinder(0.015, 0.14, sections=32)
+    rod.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
+    cube = trimesh.creation.box((0.05, 0.05, 0.05))
+    objects = [SynthObject(1, book, pose([0.04, 0.03, 0.015]), label="book", prior=rod,
+                           world_from_prior=pose([0.04, 0.03, 0.03])),
+               SynthObject(2, cube, pose([-0.08, -0.06, 0.025]), label="cube", prior=cube,
+                           world_from_prior=pose([-0.08, -0.06, 0.025]))]
+    K, world_from_camera = _oblique_view()
+    scene = write_input_scene(tmp_path / "scene", objects, 320, 240,
+                              K=default_camera(320, 240)[0], world_from_camera=world_from_camera)
+    result = run_stage(STAGE, scene, Options(icp_yaw_hypotheses=1))
+    state = read_state(ScenePaths(scene).stage_dir("init"))
+    sources = {o.id: o.source for o in state.objects}
+    assert sources == {1: "completed", 2: "prior"}
+    assert any(f.startswith("object 1: its prior does not fit") for f in result.summary["flags"])
+    assert not any(f.startswith("object 2: its prior") for f in result.summary["flags"])
