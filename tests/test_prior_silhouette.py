@@ -8,7 +8,7 @@ import trimesh
 from helpers_init import SynthObject, default_camera, pose, render_view, write_input_scene
 from r2s.geometry.prior_refine import RefinedPose
 from r2s.geometry.prior_silhouette import (fit_prior_to_view, fit_priors_to_view, image_box,
-                                           instance_view, penetration_m, raycasting_scene)
+                                           instance_view, penetration_m, obstacle)
 
 TABLE = (np.zeros(3), np.array([0.0, 0.0, 1.0]))
 WIDTH, HEIGHT = 640, 480
@@ -86,12 +86,12 @@ def test_two_priors_too_wide_towards_each_other_are_shrunk_apart():
     prior = trimesh.creation.box(extents=extents * np.array([1.15, 1.0, 1.0]))
     priors = {i: (prior, _start(prior, pose(c))) for i, c in centres.items()}
     start_overlap = penetration_m(_posed(prior, priors[1][1]),
-                                  [raycasting_scene(_posed(prior, priors[2][1]))])
+                                  [obstacle(_posed(prior, priors[2][1]))])
     assert start_overlap > 0.0045
     fits = fit_priors_to_view(priors, {}, K, world_from_camera, depth, masks, TABLE)
     assert set(fits) == {1, 2}
     meshes = {i: _posed(prior, f.pose) for i, f in fits.items()}
-    assert penetration_m(meshes[1], [raycasting_scene(meshes[2])]) < 0.002
+    assert penetration_m(meshes[1], [obstacle(meshes[2])]) < 0.002
     for i, mesh in meshes.items():
         # the overlap is taken out of the widths (each shrinks by more than 3 mm of the
         # prior's 46 mm), not by pushing the boxes apart (centres within 3 mm of the truth)

@@ -83,7 +83,7 @@ class SilhouetteFitOptions:
     max_rays: int = 20000
     window_pad_px: int = 20
     max_evaluations: int = 400
-    contact_samples: int = 600
+    contact_samples: int = 300
     contact_normaliser: float = 5.0
 
 
@@ -269,7 +269,7 @@ class _Problem:
 
     def __init__(self, mesh: trimesh.Trimesh, pose: RefinedPose, view: InstanceView,
                  support: Optional[tuple[np.ndarray, np.ndarray]],
-                 others: Sequence[o3d.t.geometry.RaycastingScene], o: SilhouetteFitOptions):
+                 others: Sequence["Obstacle"], o: SilhouetteFitOptions):
         self.o, self.view, self.support, self.others = o, view, support, list(others)
         self.centre = np.asarray(pose.centre, np.float64)
         self.caster = _Caster(mesh, self.centre, view)
@@ -310,11 +310,10 @@ class _Problem:
     def _others_cost(self, R: np.ndarray, t: np.ndarray, s: np.ndarray) -> float:
         if not self.others:
             return 0.0
-        pts = o3d.core.Tensor(((self.samples * s) @ R.T + t).astype(np.float32))
+        pts = (self.samples * s) @ R.T + t
         depth = np.zeros(len(self.samples))
-        for scene in self.others:
-            sd = scene.compute_signed_distance(pts).numpy()
-            depth = np.maximum(depth, -np.minimum(sd, 0.0))
+        for other in self.others:
+            depth = np.maximum(depth, other.penetration_m(pts))
         return float(np.sum((depth / self.pixel_m) ** 2)) / self.o.contact_normaliser
 
     def score(self, x: np.ndarray) -> ViewScore:
@@ -385,14 +384,13 @@ def _pattern_search(cost, x0: np.ndarray, bounds: list[tuple[float, float]],
 
 def fit_prior_to_view(mesh: trimesh.Trimesh, start: RefinedPose, view: InstanceView,
                       support: Optional[tuple[np.ndarray, np.ndarray]] = None,
-                      others: Sequence[o3d.t.geometry.RaycastingScene] = (),
+                      others: Sequence["Obstacle"] = (),
                       options: SilhouetteFitOptions = SilhouetteFitOptions()) -> ViewFit:
     """Fit pose and per-axis scale of a prior to one instance's view (module docstring).
 
     mesh : the prior, its own frame (unscaled); start : its registered pose and scale.
     view : :func:`instance_view` of the instance; support : (point, unit normal) or None.
-    others : ray-casting scenes (world frame) of objects already placed: the prior is kept
-        out of them.
+    others : :func:`obstacle` of objects already placed: the prior is kept out of them.
     The start is returned unchanged when the fit does not lower the cost.
     """
     problem = _Problem(mesh, start, view, support, others, options)
@@ -406,14 +404,37 @@ def fit_prior_to_view(mesh: trimesh.Trimesh, start: RefinedPose, view: InstanceV
                    resting=problem.resting, evaluations=problem.evaluations)
 
 
-def raycasting_scene(mesh_world: trimesh.Trimesh) -> o3d.t.geometry.RaycastingScene:
-    """An Open3D scene of one world-frame mesh (for ``others`` of :func:`fit_prior_to_view`)."""
+@dataclass(frozen=True)
+class Obstacle:
+    """A world-frame mesh other priors are kept out of: its Open3D scene and its
+    axis-aligned box ``lo``, ``hi`` (3,) (points outside it are not queried)."""
+
+    scene: o3d.t.geometry.RaycastingScene
+    lo: np.ndarray
+    hi: np.ndarray
+
+    def penetration_m(self, points_world: np.ndarray) -> np.ndarray:
+        """(N,) depth (m) of each point inside the mesh, 0 outside."""
+        pts = np.asarray(points_world, dtype=np.float64)
+        out = np.zeros(len(pts))
+        near = np.all((pts > self.lo) & (pts < self.hi), axis=1)
+        if near.any():
+            query = o3d.core.Tensor(pts[near].astype(np.float32))
+            sd = self.scene.compute_signed_distance(query, nthreads=1).numpy()
+            out[near] = np.maximum(-sd, 0.0)
+        return out
+
+
+def obstacle(mesh_world: trimesh.Trimesh) -> Obstacle:
+    """The :class:`Obstacle` of a world-frame mesh (for ``others`` of
+    :func:`fit_prior_to_view`)."""
     tm = o3d.t.geometry.TriangleMesh()
     tm.vertex.positions = o3d.core.Tensor(np.asarray(mesh_world.vertices, dtype=np.float32))
     tm.triangle.indices = o3d.core.Tensor(np.asarray(mesh_world.faces, dtype=np.int32))
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(tm)
-    return scene
+    bounds = np.asarray(mesh_world.bounds, dtype=np.float64)
+    return Obstacle(scene=scene, lo=bounds[0], hi=bounds[1])
 
 
 def image_box(mesh_world: trimesh.Trimesh, K: np.ndarray, world_from_camera: np.ndarray
@@ -433,20 +454,15 @@ def _posed(prior: trimesh.Trimesh, pose: RefinedPose) -> trimesh.Trimesh:
     return out
 
 
-def penetration_m(mesh_world: trimesh.Trimesh, others: Sequence[o3d.t.geometry.RaycastingScene],
+def penetration_m(mesh_world: trimesh.Trimesh, others: Sequence[Obstacle],
                   samples: int = 600) -> float:
     """Deepest penetration (m) of a world-frame mesh's vertices and surface samples into
-    the other objects' scenes (0 when none)."""
+    the other objects (0 when none)."""
     if not others:
         return 0.0
     surface, _ = trimesh.sample.sample_surface(mesh_world, samples, seed=0)
     pts = np.concatenate([np.asarray(mesh_world.vertices), np.asarray(surface)])
-    query = o3d.core.Tensor(pts.astype(np.float32))
-    deepest = 0.0
-    for scene in others:
-        sd = scene.compute_signed_distance(query).numpy()
-        deepest = max(deepest, float(-sd.min()))
-    return deepest
+    return max(float(other.penetration_m(pts).max()) for other in others)
 
 
 def fit_priors_to_view(priors: dict[int, tuple[trimesh.Trimesh, RefinedPose]],
@@ -471,7 +487,7 @@ def fit_priors_to_view(priors: dict[int, tuple[trimesh.Trimesh, RefinedPose]],
         fits[obj_id] = fit_prior_to_view(prior, pose, view, support, options=options)
     world = dict(fixed_world)
     world.update({i: _posed(priors[i][0], f.pose) for i, f in fits.items()})
-    scenes = {i: raycasting_scene(m) for i, m in world.items()}
+    scenes = {i: obstacle(m) for i, m in world.items()}
     for obj_id, (prior, _) in priors.items():
         others = [scenes[j] for j in scenes if j != obj_id]
         if penetration_m(world[obj_id], others) <= separation_m:
@@ -485,5 +501,5 @@ def fit_priors_to_view(priors: dict[int, tuple[trimesh.Trimesh, RefinedPose]],
                                resting=refit.resting,
                                evaluations=fits[obj_id].evaluations + refit.evaluations)
         world[obj_id] = _posed(prior, refit.pose)
-        scenes[obj_id] = raycasting_scene(world[obj_id])
+        scenes[obj_id] = obstacle(world[obj_id])
     return fits
