@@ -81,7 +81,8 @@ def merged_fragments(scene: InputScene) -> InputScene:
              f"reconstructed as one object, id {p}" for f, (p, why) in sorted(parents.items())]
     return replace(scene, masks=merge_masks(scene.masks, parents),
                    objects=[o for o in scene.objects if o.id not in parents],
-                   warnings=list(scene.warnings) + notes)
+                   warnings=list(scene.warnings) + notes,
+                   merged_ids={**scene.merged_ids, **{f: p for f, (p, _) in parents.items()}})
 
 
 def corrected_camera(camera: Camera, model: Mapping[str, Any] | None) -> Camera:

@@ -71,3 +71,23 @@ def test_a_sliver_goes_to_its_object_and_a_prior_is_never_a_fragment():
     assert fragment_parents(masks, depth, rgb)[9][0] == 4
     assert fragment_parents(masks, depth, rgb, protected_ids=[9])[4][0] == 9
     assert fragment_parents(masks, depth, rgb, protected_ids=[4, 9]) == {}
+
+
+def test_corrected_input_relabels_a_fragment_and_drops_its_object():
+    """Through the hook every stage uses: the split piece's pixels carry the object's id,
+    its ObjectSpec is gone, one warning line names the merge, merged_ids records it."""
+    from r2s.io.input_scene import Camera, InputScene, ObjectSpec
+    from r2s.scene_model import corrected_input
+
+    masks = np.zeros((H, W), np.int32)
+    masks[20:60, 20:70], masks[20:60, 70:100] = 1, 7
+    cam = Camera(K=np.array([[100.0, 0, 60], [0, 100.0, 40], [0, 0, 1]]),
+                 world_from_camera=np.eye(4), width=W, height=H)
+    scene = InputScene(rgb=_image((200, 40, 40), (200, 40, 40), 70),
+                       depth_m=_plane_depth().astype(np.float32), masks=masks, camera=cam,
+                       objects=[ObjectSpec(1, "box"), ObjectSpec(7, "object_7")])
+    out = corrected_input(scene, {})
+    assert out.ids == [1] and out.merged_ids == {7: 1}
+    assert (out.masks == 1).sum() == 40 * 80 and not (out.masks == 7).any()
+    assert len(out.warnings) == 1 and "instance 7 is taken as part of instance 1" in out.warnings[0]
+    assert corrected_input(scene, {}, merge_fragments=False).ids == [1, 7]
