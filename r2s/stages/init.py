@@ -4,12 +4,16 @@ From ``input/`` alone: back-project the depth, fit the support plane on the pixe
 belong to no object, then per object either register its prior mesh to the observed
 points (robust visibility-aware ICP with a free-space term and a bounded scale; a global
 search when no pose is given) or, without a prior, complete a closed mesh from the
-observation (height field over the support plane). No physics here: interpenetration and
-floating are left for the later stages to resolve.
+observation (height field over the support plane). Registered priors are then fitted to
+their view (``fit_view``: pose and a bounded scale per axis against the silhouette, the
+depth, the free space and the support plane they rest on; priors reaching into other
+objects refitted with them as obstacles; geometry/prior_silhouette.py), and a prior that
+still does not match its mask is replaced by the completion. No dynamics here: settling
+and stability are left for the later stages.
 
 Object frames: a registered prior keeps its own axes, with the origin moved to the centre
-of its bounding box and the estimated scale applied to the mesh (``world_from_object`` is
-rigid); a completed object has the support plane's axes and its origin at the centre of
+of its bounding box and the estimated scale (per axis with ``fit_view``) applied to the
+mesh (``world_from_object`` is rigid); a completed object has the support plane's axes and its origin at the centre of
 its footprint, on its base. Extra keys per object in ``state.json``: ``icp_fitness``,
 ``icp_rmse_m`` (for completed objects: of the observed points against the completed
 surface), ``scale``, ``observed_points``, ``num_observed_points``.
