@@ -149,3 +149,30 @@ def test_check_memo_returns_the_fresh_worlds_result(bar_scene):
         assert len(built) == before + 2
     check(counting, params, orders, 2.0)
     assert len(built) == 2 + 4 * 2 + 2
+
+
+def test_settle_memo_returns_the_fresh_worlds_result(bar_scene):
+    from r2s.physopt.repair import settle_round
+
+    pieces, state, params = bar_scene
+    settings, order = RepairSettings(), [1, 2]
+    built = []
+    make_world = world_factory(pieces, state, order, settings)
+
+    def counting(p, body_order=None):
+        built.append(body_order)
+        return make_world(p, body_order)
+
+    counting.checked, counting.order = make_world.checked, make_world.order
+    log = {"objects": {1: [], 2: []}, "rounds": []}
+    first = settle_round(counting, params, order, 1, settings, log)
+    assert len(built) == 1
+    # the raised bar settled onto the table (2 cm down), the other stayed
+    assert first[2].world_from_object[2, 3] == pytest.approx(0.02, abs=0.002)
+    assert first[1].world_from_object[2, 3] == pytest.approx(0.02, abs=0.001)
+    again = settle_round(counting, params, order, 1, settings, log)
+    assert len(built) == 1
+    fresh = settle_round(lambda p, o=None: make_world(p, o), params, order, 1, settings, log)
+    for i in order:
+        assert np.array_equal(again[i].world_from_object, first[i].world_from_object)
+        assert np.array_equal(fresh[i].world_from_object, first[i].world_from_object)
