@@ -24,6 +24,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "scripts"))
+sys.path.insert(0, str(REPO))  # the child measures this tree's r2s, not an installed one
 
 from doc_block import write_generated_block  # noqa: E402
 
