@@ -84,8 +84,8 @@ same pieces; trimesh's OBJ writer takes most of a world's Python time)."""
 
 
 def _obj_bytes(piece: trimesh.Trimesh) -> bytes:
-    """``piece.export(file_type="obj")`` as bytes, remembered by the piece's vertices and
-    faces (what the file holds)."""
+    """The OBJ file of the piece's vertices and faces, as trimesh writes it for a plain
+    piece (what ``piece.export`` wrote here before), remembered by those arrays."""
     v = np.ascontiguousarray(piece.vertices, dtype=np.float64)
     f = np.ascontiguousarray(piece.faces, dtype=np.int64)
     key = hashlib.sha1(v.tobytes() + b"|" + f.tobytes()).digest()
