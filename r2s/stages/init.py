@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 import trimesh
@@ -38,6 +38,7 @@ from r2s.geometry.camera import backproject
 from r2s.geometry.carving import carve_view
 from r2s.geometry.colors import color_mesh_from_image, has_appearance
 from r2s.geometry.completion import complete_from_points
+from r2s.geometry.hidden_partition import Claimant, exclusion, overlaps
 from r2s.geometry.free_space import view_constraint
 from r2s.geometry.mask_edges import foreign_rim_pixels
 from r2s.geometry.point_cleanup import object_point_mask
@@ -129,6 +130,10 @@ class Options(StageOptions):
         True, description="Carve against the fitted support plane where the camera sees the "
                           "table (a 2 mm margin instead of the sensor's; see "
                           "geometry/carving.py).")
+    completion_partition_hidden: bool = Field(
+        True, description="Where two completed objects fill the same hidden space, give it "
+                          "to the one whose observed surface is nearer (a prior keeps all "
+                          "of its inside; see geometry/hidden_partition.py).")
     completion_extend_fraction: float = Field(
         0.0, ge=0, description="Sweep a completed object's footprint towards the camera "
                                "into space hidden by nearer things, by up to this fraction "
@@ -244,7 +249,8 @@ def _register(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, plane: Plane
 
 
 def _complete(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, pix: np.ndarray,
-              others: Optional[np.ndarray], plane: PlaneFit, o: Options
+              others: Optional[np.ndarray], plane: PlaneFit, o: Options,
+              exclude: Optional[Callable[[np.ndarray], np.ndarray]] = None
               ) -> tuple[trimesh.Trimesh, np.ndarray]:
     """A closed, coloured mesh completed from the observation (object frame) and its pose;
     ``others`` are the other objects' points (what the object may stand on)."""
@@ -263,10 +269,68 @@ def _complete(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, pix: np.ndar
                                      cell_m=o.completion_cell_m, below_points_world=others,
                                      hull_margin_m=o.completion_hull_margin_px * pixel_m,
                                      view=view,
-                                     extend_fraction=o.completion_extend_fraction)
+                                     extend_fraction=o.completion_extend_fraction,
+                                     exclude=exclude)
     except ValueError as exc:
         raise StageError(f"object {spec.id}: completion failed ({exc})") from None
     return shape.mesh, shape.world_from_object
+
+
+def _save_object(spec: ObjectSpec, shape: tuple, pts: np.ndarray, out: Path, o: Options,
+                 table_extent_m: float
+                 ) -> tuple[ObjectState, trimesh.Trimesh, float, list[str]]:
+    """Write one object's mesh and points; its state entry, world-frame mesh, fit RMSE
+    and warning lines. ``shape`` = (mesh (object frame), world_from_object, registration
+    or None for a completed object)."""
+    mesh, world_from_object, reg = shape
+    if reg is not None:
+        source, fitness, rmse, scale = "prior", reg.fitness, reg.rmse_m, reg.scale
+    else:
+        source, scale = "completed", 1.0
+        mesh_w = mesh.copy()
+        mesh_w.apply_transform(world_from_object)
+        fitness, rmse = surface_fit(mesh_w, pts, o.icp_inlier_m, seed=o.seed)
+    flags = _result_flags(spec.id, float(fitness), mesh, table_extent_m)
+    save_mesh(mesh, out / "meshes" / f"{spec.id}.glb")
+    np.save(out / "points" / f"{spec.id}.npy", pts.astype(np.float32))
+    mesh_w = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    mesh_w.apply_transform(world_from_object)
+    state = ObjectState(
+        id=spec.id, label=spec.label, mesh=f"meshes/{spec.id}.glb",
+        world_from_object=world_from_object.tolist(), source=source,
+        icp_fitness=round(float(fitness), 6),
+        icp_rmse_m=float(rmse) if np.isfinite(rmse) else None, scale=float(scale),
+        observed_points=f"points/{spec.id}.npy", num_observed_points=int(len(pts)))
+    return state, mesh_w, float(rmse), flags
+
+
+def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple],
+                      plane: PlaneFit, o: Options) -> None:
+    """Complete again, in place in ``shapes``, every completed object whose first
+    completion overlaps another object, without the hidden space that the other owns
+    (:mod:`r2s.geometry.hidden_partition`); the overlaps are judged on the first
+    completions, so the split does not depend on the order of the objects."""
+    posed = {}
+    for obj_id, (mesh, world_from_object, _) in shapes.items():
+        m = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+        posed[obj_id] = m.apply_transform(world_from_object)
+    redo = {}
+    for spec in scene.objects:
+        if shapes[spec.id][2] is not None:
+            continue  # a registered prior keeps its shape
+        claimants = [Claimant(posed[j], observed[j][0], shapes[j][2] is not None)
+                     for j in shapes if j != spec.id]
+        if claimants and overlaps(posed[spec.id], claimants):
+            redo[spec.id] = exclusion(observed[spec.id][0], claimants)
+    for spec in scene.objects:
+        if spec.id not in redo:
+            continue
+        pts, pix = observed[spec.id]
+        others = [observed[j][0] for j in observed if j != spec.id]
+        mesh, world_from_object = _complete(
+            scene, spec, pts, pix, np.concatenate(others) if others else None, plane, o,
+            exclude=redo[spec.id])
+        shapes[spec.id] = (mesh, world_from_object, None)
 
 
 def _result_flags(obj_id: int, fitness: float, mesh: trimesh.Trimesh,
@@ -309,34 +373,29 @@ def run(ctx: StageContext) -> dict:
     posed: list[trimesh.Trimesh] = []
     rmses: list[float] = []
     n = len(scene.objects)
+    shapes: dict[int, tuple] = {}  # id -> (mesh (object frame), world_from_object, reg)
     for k, spec in enumerate(scene.objects):
-        ctx.progress(f"object {spec.id}", k / max(n, 1))
+        ctx.progress(f"object {spec.id}", 0.9 * k / max(n, 1))
         pts, pix = observed[spec.id]
         if spec.prior_mesh is not None:
             mesh, world_from_object, reg = _register(scene, spec, pts, plane, o, flags)
-            source, fitness, rmse, scale = "prior", reg.fitness, reg.rmse_m, reg.scale
-            rmses.append(rmse)
+            shapes[spec.id] = (mesh, world_from_object, reg)
         else:
             others = [observed[j][0] for j in observed if j != spec.id]
             mesh, world_from_object = _complete(
                 scene, spec, pts, pix, np.concatenate(others) if others else None, plane, o)
-            source, scale = "completed", 1.0
-            mesh_w = mesh.copy()
-            mesh_w.apply_transform(world_from_object)
-            fitness, rmse = surface_fit(mesh_w, pts, o.icp_inlier_m, seed=o.seed)
-        flags += _result_flags(spec.id, float(fitness), mesh, table_extent_m)
-        save_mesh(mesh, out / "meshes" / f"{spec.id}.glb")
-        np.save(out / "points" / f"{spec.id}.npy", pts.astype(np.float32))
-        mesh_w = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
-        mesh_w.apply_transform(world_from_object)
+            shapes[spec.id] = (mesh, world_from_object, None)
+    if o.completion_partition_hidden:
+        ctx.progress("hidden space shared by completed objects", 0.9)
+        _partition_hidden(scene, observed, shapes, plane, o)
+    for spec in scene.objects:
+        state, mesh_w, rmse, more = _save_object(spec, shapes[spec.id], observed[spec.id][0],
+                                                 out, o, table_extent_m)
+        objects.append(state)
         posed.append(mesh_w)
-        objects.append(ObjectState(
-            id=spec.id, label=spec.label, mesh=f"meshes/{spec.id}.glb",
-            world_from_object=world_from_object.tolist(), source=source,
-            icp_fitness=round(float(fitness), 6),
-            icp_rmse_m=float(rmse) if np.isfinite(rmse) else None, scale=float(scale),
-            observed_points=f"points/{spec.id}.npy", num_observed_points=int(len(pts)),
-        ))
+        flags += more
+        if state.source == "prior":
+            rmses.append(rmse)
 
     ctx.progress("overlay", 0.95)
     rendered = render_instances(posed, cam.K, cam.world_from_camera, cam.width, cam.height)
