@@ -6,8 +6,10 @@ point along its ray by the factor ``z_obs / z_true = s + o / z_true``. An object
 observation needs the prior scaled by ``s + o s / (z_obs - o)`` (``z_obs``: the object's
 observed depth). A pure scale scales the whole scene about the camera centre (planes stay
 planes with the same normal, so the table says nothing about ``s``); an offset makes the
-apparent size depend on depth. From one view with objects at similar depths, ``s`` and
-``o`` are nearly collinear; the BIC then prefers the one-parameter versions.
+apparent size depend on depth, and bends an obliquely seen table
+(:mod:`r2s.diagnose.stats.table_offset`). From the priors of one view with objects at
+similar depths, ``s`` and ``o`` are nearly collinear; the BIC then prefers the
+one-parameter versions.
 """
 
 from __future__ import annotations
