@@ -72,7 +72,7 @@ class DepthBiasEffect(Effect):
                           f"beyond {MAX_TABLE_OFFSET_M * 1000:.0f} mm: not an offset")
         reg = residuals.registration
         if reg is not None and len(reg.used()) >= self.n_params + 1:
-            s_p, o_p = fit_bias(reg, self.fit_scale, True)
+            _, o_p = fit_bias(reg, self.fit_scale, True)
             sig_p = offset_sigma_from_priors(reg, self.fit_scale, o_p)
             if np.isfinite(sig_p) and ((o_p - ev.offset_m) ** 2
                                        / (sig_p ** 2 + ev.sigma_m ** 2) > CONSISTENT_CHI2):
@@ -138,10 +138,12 @@ class DepthBiasEffect(Effect):
                 values.append(fit.explained_sse + drawn.explained(fit.params["offset_m"]))
         boot = float(np.quantile(values, quantile)) if values else 0.0
         if n_params == 1:
+            # the priors' share of the information, with their noise level's dof, even
+            # where too few to bootstrap
             info_t = 1.0 / table.sigma_m ** 2
-            share = info_t / (info_t + offset_information_from_priors(reg if enough else None))
-            bar = mixed_sampling_bar(reg.noise_dof if enough else None, share, quantile,
-                                     seed=seed)
+            share = info_t / (info_t + offset_information_from_priors(reg))
+            bar = mixed_sampling_bar(reg.noise_dof if reg is not None else None, share,
+                                     quantile, seed=seed)
         else:
             bar = (sampling_bar(reg, n_params, quantile) if enough
                    else float(chi2.ppf(quantile, n_params)))
