@@ -16,10 +16,12 @@ changed model makes exactly those stages (and what depends on their outputs) sta
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Iterable, Mapping
 
 from r2s.diagnose.effects import all_effects, get_effect
 from r2s.errors import R2SError
+from r2s.geometry.mask_fragments import fragment_parents, merge_masks
 from r2s.io.input_scene import Camera, InputScene
 from r2s.io.state import SceneState
 
@@ -52,14 +54,35 @@ def _ordered(model: Mapping[str, Any] | None) -> list[tuple[str, dict]]:
     return [(name, dict(items[name])) for name in known if name in items]
 
 
-def corrected_input(input_scene: InputScene, model: Mapping[str, Any] | None) -> InputScene:
-    """The observation with the model's input-level effects applied (depth, camera)."""
+def corrected_input(input_scene: InputScene, model: Mapping[str, Any] | None,
+                    merge_fragments: bool = True) -> InputScene:
+    """The observation with the model's input-level effects applied (depth, camera), then,
+    with ``merge_fragments``, mask ids that are pieces of one object (a segmenter's splits
+    and slivers, :mod:`r2s.geometry.mask_fragments`) relabelled as that object, with one
+    warning line each."""
     out = input_scene
     for name, params in _ordered(model):
         effect = get_effect(name)
         if effect.level == "input":
             out = effect.apply_to_input(out, params)
-    return out
+    return merged_fragments(out) if merge_fragments else out
+
+
+def merged_fragments(scene: InputScene) -> InputScene:
+    """``scene`` with every fragment id's mask pixels given to the object it is part of
+    and its :class:`ObjectSpec` dropped (ids with a shape prior are never fragments)."""
+    protected = [o.id for o in scene.objects if o.prior_mesh is not None]
+    parents = fragment_parents(scene.masks, scene.depth_m, scene.rgb, protected)
+    parents = {f: p for f, p in parents.items()
+               if f in scene.ids and p[0] in scene.ids}
+    if not parents:
+        return scene
+    notes = [f"masks.png: instance {f} is taken as part of instance {p} ({why}); "
+             f"reconstructed as one object, id {p}" for f, (p, why) in sorted(parents.items())]
+    return replace(scene, masks=merge_masks(scene.masks, parents),
+                   objects=[o for o in scene.objects if o.id not in parents],
+                   warnings=list(scene.warnings) + notes,
+                   merged_ids={**scene.merged_ids, **{f: p for f, (p, _) in parents.items()}})
 
 
 def corrected_camera(camera: Camera, model: Mapping[str, Any] | None) -> Camera:

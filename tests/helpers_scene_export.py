@@ -29,15 +29,18 @@ def textured(mesh: trimesh.Trimesh, seed: int) -> trimesh.Trimesh:
     return out
 
 
-def exported_scene(root: Path) -> Path:
-    """Write gt/ + input/camera.json under ``root`` and export it; returns ``root/export``."""
+def exported_scene(root: Path, box_lift_m: float = 0.0, can_lift_m: float = 0.0) -> Path:
+    """Write gt/ + input/camera.json under ``root`` and export it; returns ``root/export``.
+
+    The box stands on the table and the can on the box, in exact contact; ``box_lift_m`` and
+    ``can_lift_m`` raise them (m, world z)."""
     (root / "gt" / "meshes").mkdir(parents=True)
     save_mesh(textured(trimesh.creation.box([0.1, 0.1, 0.1]), 1), root / "gt/meshes/1.glb")
     save_mesh(textured(trimesh.creation.cylinder(radius=0.02, height=0.08, sections=24), 2),
               root / "gt/meshes/2.glb")
     box_pose, can_pose = np.eye(4), np.eye(4)
-    box_pose[:3, 3] = [0.02, -0.01, 0.05]
-    can_pose[:3, 3] = [0.02, -0.01, 0.14]
+    box_pose[:3, 3] = [0.02, -0.01, 0.05 + box_lift_m]
+    can_pose[:3, 3] = [0.02, -0.01, 0.14 + can_lift_m]
     scene = {
         "gravity": [0, 0, -9.81],
         "objects": [

@@ -148,3 +148,28 @@ def test_flying_pixels_do_not_stretch_the_footprint():
     assert abs(done.mesh.volume / box.volume - 1.0) < 0.15
     raw = complete_from_points(pts, [0, 0, 0], [0, 0, 1], outlier_factor=0.0)
     assert raw.mesh.volume > 1.2 * box.volume  # what the filter prevents
+
+
+def test_a_neighbour_beside_the_object_is_not_its_support():
+    """A box (100 x 80 x 80 mm) on the table whose lower 25 mm are hidden, with the side of
+    a lying can beside it reaching from 15 to 35 mm within 1 cm of its footprint: the can
+    passes the level where the box's visible part ends, so it is beside the box, not under
+    it, and the box goes down to the table. The same can points all below the box's
+    visible part (a box seen down to 45 mm) say nothing about what is under it; a wider
+    slab's top around it (30-35 mm, on every side within 1 cm) holds it up: the base lands
+    on the slab's top within 3 mm."""
+    rng = np.random.default_rng(0)
+    n = 3000
+    top = np.c_[rng.uniform(-0.05, 0.05, n), rng.uniform(-0.04, 0.04, n), np.full(n, 0.08)]
+    front = np.c_[rng.uniform(-0.05, 0.05, n), np.full(n, -0.04), rng.uniform(0.025, 0.08, n)]
+    box_pts = np.vstack([top, front])
+    can_side = np.c_[rng.uniform(-0.04, 0.04, 400), rng.uniform(0.045, 0.048, 400),
+                     rng.uniform(0.015, 0.035, 400)]
+    beside = complete_from_points(box_pts, [0, 0, 0], [0, 0, 1], below_points_world=can_side)
+    assert beside.bottom_m == pytest.approx(0.0, abs=1e-6)
+    high = box_pts[box_pts[:, 2] >= 0.045]
+    xy = rng.uniform([-0.06, -0.05], [0.06, 0.05], (4000, 2))
+    ring = xy[(np.abs(xy[:, 0]) > 0.05) | (np.abs(xy[:, 1]) > 0.04)]
+    slab = np.c_[ring, rng.uniform(0.030, 0.035, len(ring))]
+    under = complete_from_points(high, [0, 0, 0], [0, 0, 1], below_points_world=slab)
+    assert under.bottom_m == pytest.approx(0.035, abs=0.003)

@@ -50,13 +50,14 @@ def _bleed(masks: np.ndarray, obj_id: int, fraction: float, onto: int = 0) -> np
     return out
 
 
-def _complete(depth, masks, camera, obj_id, clean=True, carve=True, extend=0.0):
+def _complete(depth, masks, camera, obj_id, clean=True, carve=True, extend=0.0, table=False):
     pts, pix = backproject(depth, K, camera, masks == obj_id, return_pixels=True)
     if clean:
         keep = object_point_mask(pts, pix, depth[pix[:, 0], pix[:, 1]], [0, 0, 0], [0, 0, 1])
         pts, pix = pts[keep], pix[keep]
     others = backproject(depth, K, camera, (masks != obj_id) & (masks > 0))
-    view = carve_view(K, camera, depth, pix) if carve else None
+    plane = (np.zeros(3), np.array([0.0, 0.0, 1.0])) if table else None
+    view = carve_view(K, camera, depth, pix, plane=plane) if carve else None
     margin = 0.25 * float(np.median(depth[pix[:, 0], pix[:, 1]])) / K[0, 0]
     done = complete_from_points(pts, [0, 0, 0], [0, 0, 1], hull_margin_m=margin,
                                 below_points_world=others if len(others) else None, view=view,
@@ -240,3 +241,46 @@ def test_object_behind_a_nearer_one_continues_behind_it_when_asked():
     np.testing.assert_allclose(swept.extents[[0, 2]], [0.10, 0.05], rtol=0.05)
     assert swept.bounds[1, 1] == pytest.approx(0.125, abs=0.005)
     assert _free_space_violation(swept, depth, masks, camera, 1)[0] <= 0.02
+
+
+def test_lying_cylinder_leaves_no_skirt_on_the_visible_table():
+    """A can lying on its side (r = 40 mm), seen from 30 degrees with 1.5 mm depth noise:
+    the walls extruded from its widest outline down to the table hide table in front of
+    it that the camera saw, a few millimetres above it (inside the sensor margin). Carved
+    against the fitted support plane, the completion's silhouette covers at most 1.2 % of
+    the mask area on visible table outside a 2-pixel band (measured 0.8 %), against >= 2 %
+    with the sensor margin alone (measured 2.9 %), and
+    its silhouette IoU against the true mask is >= 0.9."""
+    can = trimesh.creation.cylinder(0.04, 0.12, sections=96)
+    can_pose = pose([0.0, 0.0, 0.04], rotation([1, 0, 0], 90.0) @ rotation([0, 0, 1], 0.0))
+    camera = _oblique(30.0, -90.0, 0.55, target=(0.0, 0.0, 0.04))
+    _, depth, masks = render_view([SynthObject(1, can, can_pose)], K, camera, W, H)
+    depth = depth + np.random.default_rng(1).normal(0, 0.0015, depth.shape)
+
+    def skirt_and_iou(world):
+        _, hit, _ = raycast_view([world], K, camera, W, H)
+        drawn, mask = hit == 0, masks == 1
+        band = ndimage.binary_dilation(mask, iterations=2)
+        skirt = (drawn & ~band & (masks == 0)).sum() / mask.sum()
+        return skirt, (drawn & mask).sum() / (drawn | mask).sum()
+
+    skirt, iou = skirt_and_iou(_complete(depth, masks, camera, 1, table=True))
+    skirt_sensor, _ = skirt_and_iou(_complete(depth, masks, camera, 1, table=False))
+    assert skirt <= 0.012, skirt
+    assert iou >= 0.9, iou
+    assert skirt_sensor >= 0.02, skirt_sensor
+
+
+def test_plane_depth_matches_the_analytic_depth():
+    """Camera 0.5 m above a level table, looking 30 degrees below the horizon: the depth
+    of the plane along the optical axis is h / sin(30 deg) = 1.0 m, and at every pixel the
+    back-projected point lies on the plane within 1e-9 m."""
+    from r2s.geometry.carving import plane_depth_m
+
+    cam = look_at(np.array([0.0, -0.5 / np.tan(np.radians(30.0)), 0.5]), np.zeros(3))
+    d = plane_depth_m(K, cam, np.zeros(3), np.array([0.0, 0.0, 1.0]), (H, W))
+    cx, cy = int(round(K[0, 2])), int(round(K[1, 2]))
+    centre_ray = np.linalg.solve(K, [cx, cy, 1.0])
+    assert abs(d[cy, cx] * np.linalg.norm(centre_ray) - 1.0) < 5e-3  # half a pixel off axis
+    pts = backproject(np.nan_to_num(d, nan=0.0), K, cam, np.isfinite(d))
+    assert np.abs(pts[:, 2]).max() < 1e-9

@@ -167,10 +167,8 @@ def test_mjcf_visuals_camera_table_and_product_friction(export_dir: Path, scene:
     assert seen[(1, 2)] == pytest.approx(BOX_FRICTION * CAN_FRICTION, rel=1e-9)
 
 
-def test_mjcf_rest_distances_match_pybullet(export_dir: Path):
-    """The stack starts in exact contact; Bullet lifts each convex body by its 1 mm margin
-    (box 1 mm, can on box 3 mm). MuJoCo with the exported pair margins does the same."""
-    pytest.importorskip("mujoco")
+def _lifts_in_both_engines(export_dir: Path, duration_s: float = 2.0):
+    """(N, 3) object-origin displacement over the rollout in PyBullet and in MuJoCo."""
     from r2s.sim.mujoco_rollout import mujoco_rollout
     from r2s.sim.pybullet_bodies import connect_direct
     from r2s.sim.pybullet_scene import load_export_scene
@@ -179,14 +177,63 @@ def test_mjcf_rest_distances_match_pybullet(export_dir: Path):
 
     client = connect_direct()
     try:
-        pyb = rollout(client, load_export_scene(client, export_dir), 2.0)
+        pyb = rollout(client, load_export_scene(client, export_dir), duration_s)
     finally:
         pb.disconnect(client)
-    mjc = mujoco_rollout(export_dir, 2.0)
-    lift_pb = pyb.world_from_object[-1, :, :3, 3] - pyb.world_from_object[0, :, :3, 3]
-    lift_mj = mjc.world_from_object[-1, :, :3, 3] - mjc.world_from_object[0, :, :3, 3]
+    mjc = mujoco_rollout(export_dir, duration_s)
+    return tuple(t.world_from_object[-1, :, :3, 3] - t.world_from_object[0, :, :3, 3]
+                 for t in (pyb, mjc))
+
+
+def test_mjcf_stack_exported_in_contact_starts_at_rest(export_dir: Path):
+    """The stack is exported in exact contact, inside Bullet's 1 mm margins. Bullet lifts
+    each convex body by its margin (box 1 mm, can on box 3 mm); MuJoCo's contacts rest at
+    the exported distance (pair margin 0), so nothing is pushed at the start."""
+    mujoco = pytest.importorskip("mujoco")
+    model = mujoco.MjModel.from_xml_path(str(export_dir / "scene.xml"))
+    assert model.npair > 0
+    touching = [k for k in range(model.npair) if model.pair_margin[k] < 1e-3]
+    assert touching, "no pair got the exported (zero) distance as its margin"
+    assert np.abs(model.pair_margin[touching]).max() < 2e-5
+    lift_pb, lift_mj = _lifts_in_both_engines(export_dir)
     assert np.allclose(lift_pb[:, 2], [0.001, 0.003], atol=2e-4)
-    assert np.abs(lift_mj - lift_pb).max() < 1e-4
+    assert np.abs(lift_mj).max() < 1e-4                    # Bullet's margins would give 1 and 3 mm
+
+
+def test_mjcf_rest_distances_match_pybullet_for_bodies_that_settle(tmp_path: Path):
+    """Box 5 mm above the table, can 10 mm above the box's top: both fall and come to rest
+    at Bullet's margins (box 1 mm up, can 1 + 2 mm up) in both engines."""
+    pytest.importorskip("mujoco")
+    export = exported_scene(tmp_path / "scene", box_lift_m=0.005, can_lift_m=0.015)
+    lift_pb, lift_mj = _lifts_in_both_engines(export)
+    assert np.allclose(lift_pb[:, 2], [0.001 - 0.005, 0.003 - 0.015], atol=2e-4)
+    assert np.abs(lift_mj[:, 2] - lift_pb[:, 2]).max() < 1e-4   # the same rest heights
+    assert np.abs(lift_mj[:, :2]).max() < 1e-3                  # the landing slides < 1 mm
+
+
+@pytest.mark.parametrize("height_m, margin_m", [
+    (0.0004, 0.0004),      # inside Bullet's margin: rests where exported
+    (0.0, 0.0),            # touching
+    (-0.0003, 0.0),        # overlapping: pushed out to touching, never kept inside
+    (0.00095, 0.001),      # within REST_TOLERANCE_M of the margin: Bullet's margin kept
+    (0.005, 0.001),        # apart: Bullet's margin
+])
+def test_fit_rest_distances_sets_each_pair_margin(height_m: float, margin_m: float):
+    """A 10 cm box whose bottom face is ``height_m`` above a plane, one pair with a 1 mm
+    margin: the fitted margin is the analytic distance, clamped as documented."""
+    mujoco = pytest.importorskip("mujoco")
+    from r2s.io.mjcf import fit_rest_distances
+
+    spec = mujoco.MjSpec()
+    plane = spec.worldbody.add_geom(name="support", type=mujoco.mjtGeom.mjGEOM_PLANE,
+                                    size=[1.0, 1.0, 0.1])
+    body = spec.worldbody.add_body(name="box", pos=[0.0, 0.0, 0.05 + height_m])
+    body.add_freejoint()
+    body.add_geom(name="c", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.05, 0.05, 0.05])
+    spec.add_pair(geomname1=plane.name, geomname2="c", margin=0.001)
+    distances = fit_rest_distances(spec)
+    assert distances[0] == pytest.approx(min(height_m, 0.001), abs=1e-7)
+    assert spec.compile().pair_margin[0] == pytest.approx(margin_m, abs=1e-7)
 
 
 def test_urdf_visual_is_the_textured_obj(export_dir: Path):

@@ -117,11 +117,19 @@ def _fill(values: np.ndarray, known: np.ndarray, xs: np.ndarray, ys: np.ndarray)
 
 
 def _support_height(pts: np.ndarray, below: np.ndarray | None, hull_eq: np.ndarray,
-                    margin_m: float, min_points: int = 30) -> tuple[float, np.ndarray | None]:
+                    margin_m: float, min_points: int = 30, envelope_percentile: float = 95.0,
+                    beside_share: float = 0.2, beside_m: float = 0.003
+                    ) -> tuple[float, np.ndarray | None]:
     """Height of what the object stands on, as a plane ``z = a x + b y + c`` or 0.
 
     Candidates are other objects' points under the footprint (grown by ``margin_m``) and
-    below the object's lowest observed point (+ margin). Returns (min height over the
+    below the object's lowest observed point (+ margin); none when more than
+    ``beside_share`` of them rise above that point by ``beside_m`` (a neighbour beside the
+    object, whose side passes the level where the object's visible part ends, not a
+    support under it: a support's top is below everything seen of what rests on it). The
+    plane fitted to them is raised
+    to their ``envelope_percentile`` (what rests on a curved surface rests on its top),
+    capped at the object's own lowest observed point. Returns (min height over the
     candidates, coefficients (3,) or None for the support plane itself).
     """
     if below is None or len(below) < min_points:
@@ -129,12 +137,18 @@ def _support_height(pts: np.ndarray, below: np.ndarray | None, hull_eq: np.ndarr
     z_low = float(np.percentile(pts[:, 2], 1))
     sel = below[(footprint_sdf(hull_eq, below[:, :2]) < margin_m)
                 & (below[:, 2] < z_low + margin_m) & (below[:, 2] > margin_m / 2)]
-    if len(sel) < min_points:
+    if len(sel) < min_points or np.mean(sel[:, 2] > z_low + beside_m) > beside_share:
         return 0.0, None
     a = np.c_[sel[:, 0], sel[:, 1], np.ones(len(sel))]
     coef, *_ = np.linalg.lstsq(a, sel[:, 2], rcond=None)
     if np.hypot(coef[0], coef[1]) > np.tan(np.radians(30)):
         coef = np.array([0.0, 0.0, float(np.median(sel[:, 2]))])
+    # an object rests on the highest points of what is under it (the crown of a lying can,
+    # not the mean of its sides): raise the plane to the upper envelope of the candidates,
+    # but never above the object's own lowest observed points
+    coef = coef.copy()
+    coef[2] += float(np.percentile(sel[:, 2] - a @ coef, envelope_percentile))
+    coef[2] = min(coef[2], z_low - float(np.mean(coef[:2] @ pts[:, :2].T)))
     return float(sel[:, 2].min()), coef
 
 

@@ -192,6 +192,9 @@ class InputScene:
     skipped_ids: list[int] = field(default_factory=list)
     """Instances in ``masks`` left out (too few pixels with valid depth); named in
     ``warnings``."""
+    merged_ids: dict[int, int] = field(default_factory=dict)
+    """``{mask id: object id}`` of ids taken as pieces of another object (set by
+    ``scene_model.corrected_input``; their pixels carry the object's id in ``masks``)."""
 
     @property
     def ids(self) -> list[int]:

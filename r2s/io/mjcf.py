@@ -17,7 +17,16 @@ pairs act. Objects farther apart keep dynamic contacts, with mu_i * mu_support p
 condim 3 (sliding friction only): PyBullet has no torsional or rolling friction by default.
 
 Contact distance. Bullet keeps convex bodies a collision margin apart; each pair's MuJoCo
-margin reproduces that rest distance (``OBJECT_MARGIN_M``).
+margin reproduces that rest distance (``OBJECT_MARGIN_M``). A MuJoCo contact rests at its
+margin, so two pieces exported closer than that (physopt's poses are often in Bullet's
+margin band, down to touching) would be pushed apart at the start: Bullet corrects such an
+overlap gently, MuJoCo's stiff soft contact kicks, and a kick of 1-2 mm tipped a standing
+screwdriver and rolled a marker in scenes that rest in PyBullet. Such a pair's margin is
+therefore its distance in the exported poses (not below 0; ``fit_rest_distances``), so the
+scene starts at rest where it was exported; pairs farther apart keep Bullet's margin.
+MuJoCo's ``gap`` would separate detection from rest distance, but the installed MuJoCo
+(4.0) ignores it for the rest distance (measured: a box with margin 10 mm and gap 5 mm
+rests 10 mm up), so the margin is set itself.
 
 Contact softness. PyBullet's contacts are hard and do not creep; MuJoCo's are soft, and on
 a slope a soft frictional contact slips slowly. The scene uses the stiffest contact that
@@ -59,6 +68,10 @@ OBJECT_MARGIN_M = 0.001
 plane and two convex bodies 2 mm apart. A MuJoCo contact with margin m comes to rest at
 distance m, so each pair's margin is the sum of its two Bullet margins (plane: 0) and the
 scene rests where the PyBullet judge had it rather than dropping 1-2 mm."""
+REST_TOLERANCE_M = 1e-4
+"""A pair exported less than this inside its Bullet margin keeps the Bullet margin: the push
+is negligible (under 0.1 mm), and shrinking the margin would drop contacts at nearby hull
+vertices (measured: a ball on one hull vertex then rolled 6 deg instead of 1 deg)."""
 MAX_ALL_PAIRS = 1024
 """Above this many piece combinations, only the near pieces of two objects get pairs."""
 
@@ -314,6 +327,28 @@ def _add_pairs(spec, objects: Sequence[MjcfObject], names: dict[int, list[str]],
         exclude.bodyname2 = f"object_{b.id}"
 
 
+def fit_rest_distances(spec) -> list[float]:
+    """Lower each ``<pair>``'s margin (its MuJoCo rest distance) to the pair's distance in
+    the spec's initial poses where that is more than ``REST_TOLERANCE_M`` smaller (clamped
+    at 0); compiles ``spec`` (its files must resolve). Returns the initial distances (m,
+    one per pair in spec order, capped at the pair's original margin)."""
+    import mujoco
+
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    distances = []
+    for pair in spec.pairs:
+        g1 = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, pair.geomname1)
+        g2 = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, pair.geomname2)
+        margin = float(pair.margin)
+        dist = min(margin, float(mujoco.mj_geomDistance(model, data, g1, g2, margin, None)))
+        if dist < margin - REST_TOLERANCE_M:
+            pair.margin = max(0.0, dist)
+        distances.append(dist)
+    return distances
+
+
 def write_mjcf(export_dir: Path, objects: Sequence[MjcfObject], gravity: Sequence[float],
                support: dict, camera=None) -> Path:
     """Build, compile (the check) and write ``export_dir/scene.xml``."""
@@ -323,6 +358,7 @@ def write_mjcf(export_dir: Path, objects: Sequence[MjcfObject], gravity: Sequenc
     spec = build_spec(objects, gravity, support, camera)
     spec.modelfiledir = str(export_dir)
     try:
+        fit_rest_distances(spec)
         spec.compile()
     except Exception as exc:
         raise StageError(f"{export_dir / EXPORT_MJCF_FILE}: MuJoCo cannot compile the scene "

@@ -121,6 +121,10 @@ def _observation(paths: ScenePaths, items: list[ObjectItem], opt: Options, model
     if not paths.input.is_dir():
         return {}, [], {}
     view = corrected_input(load_input(paths.root), model)
+    for item in items:  # mask ids reconstructed as pieces of this object (extra key)
+        pieces = sorted(f for f, p in view.merged_ids.items() if p == item.id)
+        if pieces:
+            item.extra["mask_ids"] = [item.id, *pieces]
     init_poses = None
     if (paths.stage_dir("init") / "state.json").is_file():
         init = corrected_state(read_state(paths.stage_dir("init")), model)

@@ -125,6 +125,10 @@ class Options(StageOptions):
     completion_carve: bool = Field(
         True, description="Carve a completed object against the depth image: no material "
                           "where the camera saw past it (see geometry/carving.py).")
+    completion_carve_table: bool = Field(
+        True, description="Carve against the fitted support plane where the camera sees the "
+                          "table (a 2 mm margin instead of the sensor's; see "
+                          "geometry/carving.py).")
     completion_extend_fraction: float = Field(
         0.0, ge=0, description="Sweep a completed object's footprint towards the camera "
                                "into space hidden by nearer things, by up to this fraction "
@@ -250,7 +254,8 @@ def _complete(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, pix: np.ndar
     if o.completion_clean_points:
         keep = object_point_mask(pts, pix, depth, plane.point, plane.normal)
         pts, pix = pts[keep], pix[keep]
-    view = (carve_view(cam.K, cam.world_from_camera, scene.depth_m, pix)
+    table = (plane.point, plane.normal) if o.completion_carve_table else None
+    view = (carve_view(cam.K, cam.world_from_camera, scene.depth_m, pix, plane=table)
             if o.completion_carve else None)
     try:
         shape = complete_from_points(pts, plane.point, plane.normal,

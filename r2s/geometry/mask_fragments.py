@@ -1,0 +1,185 @@
+"""Mask ids that are pieces of one object: a segmenter's splits and slivers.
+
+A segmentation network sometimes cuts one object in two (a split along a line through it)
+or gives a strip of an object, seen beside or behind a nearer one, an id of its own (a
+sliver). Reconstructed as separate objects, the two pieces overlap where each is
+completed into the other's space, and the simulation pushes them apart or topples the
+smaller one. Two ids are taken for one object when, along the boundary they share in the
+image,
+
+- the depth is continuous: at least ``min_continuous_fraction`` of the 4-neighbour pixel
+  pairs across it (both readings valid) differ by less than ``max(jump_min_m,
+  jump_fraction * z)``: the same surface runs on across the cut; two objects that touch
+  in the image are mostly at different depths there (one in front of the other);
+- the colour is continuous: the mean colours of the two sides' strips along the boundary
+  (``strip_px`` deep, starting ``BLEED_PX`` in: a mask that bleeds onto its neighbour
+  carries the neighbour's colour and depth in its first pixels) differ by at most ``max_colour_distance`` (RGB,
+  0-255, Euclidean);
+- the boundary is long enough to judge (``min_pairs`` valid pairs) and is a real part of
+  the smaller piece's outline (``min_outline_fraction``).
+
+The smaller id is the fragment and goes to the larger one; an id with a shape prior is
+never a fragment (a prior describes a whole object), and two ids with priors are never
+merged. Chains (a fragment of a fragment) resolve to the root.
+
+Pixel ``(row, col)``; depth along the camera z axis in metres, NaN = no reading.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable
+
+import numpy as np
+from scipy import ndimage
+
+JUMP_MIN_M = 0.006
+JUMP_FRACTION = 0.01
+MIN_CONTINUOUS_FRACTION = 0.85
+MAX_COLOUR_DISTANCE = 40.0
+MIN_PAIRS = 8
+MIN_OUTLINE_FRACTION = 0.05
+STRIP_PX = 4
+BLEED_PX = 4
+
+
+@dataclass(frozen=True)
+class BoundaryEvidence:
+    """What the shared boundary of two mask ids says.
+
+    pairs : 4-neighbour pixel pairs across the boundary with valid depth on both sides.
+    continuous_fraction : share of those pairs without a depth jump.
+    colour_distance : RGB distance of the two sides' mean colours along the boundary.
+    outline_fraction : boundary pixels of the smaller id over its outline pixels.
+    """
+
+    small_id: int
+    large_id: int
+    pairs: int
+    continuous_fraction: float
+    colour_distance: float
+    outline_fraction: float
+
+    def is_one_object(self) -> bool:
+        return (self.pairs >= MIN_PAIRS
+                and self.continuous_fraction >= MIN_CONTINUOUS_FRACTION
+                and self.colour_distance <= MAX_COLOUR_DISTANCE
+                and self.outline_fraction >= MIN_OUTLINE_FRACTION)
+
+    def describe(self) -> str:
+        return (f"depth continuous over {100 * self.continuous_fraction:.0f} % of "
+                f"{self.pairs} boundary pixel pairs, colours {self.colour_distance:.0f} apart")
+
+
+def _pairs(masks: np.ndarray) -> Iterable[tuple[np.ndarray, np.ndarray]]:
+    """(a, b) flat index arrays of horizontally and vertically adjacent pixels."""
+    h, w = masks.shape
+    idx = np.arange(h * w).reshape(h, w)
+    yield idx[:, :-1].ravel(), idx[:, 1:].ravel()
+    yield idx[:-1, :].ravel(), idx[1:, :].ravel()
+
+
+def boundary_evidence(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
+                      jump_min_m: float = JUMP_MIN_M, jump_fraction: float = JUMP_FRACTION,
+                      strip_px: int = STRIP_PX) -> list[BoundaryEvidence]:
+    """The evidence of every pair of ids that share a boundary.
+
+    masks : (H, W) int ids, 0 = none; depth_m : (H, W); rgb : (H, W, 3) uint8.
+    """
+    m = np.asarray(masks).ravel()
+    z = np.asarray(depth_m, dtype=np.float64).ravel()
+    a_all, b_all = (np.concatenate(x) for x in zip(*_pairs(np.asarray(masks))))
+    cross = (m[a_all] != m[b_all]) & (m[a_all] > 0) & (m[b_all] > 0)
+    a_all, b_all = a_all[cross], b_all[cross]
+    if not len(a_all):
+        return []
+    lo, hi = np.minimum(m[a_all], m[b_all]), np.maximum(m[a_all], m[b_all])
+    sizes = np.bincount(m)
+    out = []
+    for i, j in sorted(set(zip(lo.tolist(), hi.tolist()))):
+        sel = (lo == i) & (hi == j)
+        za, zb = z[a_all[sel]], z[b_all[sel]]
+        valid = np.isfinite(za) & np.isfinite(zb) & (za > 0) & (zb > 0)
+        n_valid = int(valid.sum())
+        jump = np.maximum(jump_min_m, jump_fraction * np.minimum(za[valid], zb[valid]))
+        continuous = float(np.mean(np.abs(za[valid] - zb[valid]) < jump)) if n_valid else 0.0
+        small, large = (i, j) if sizes[i] <= sizes[j] else (j, i)
+        out.append(BoundaryEvidence(
+            small_id=int(small), large_id=int(large), pairs=n_valid,
+            continuous_fraction=continuous,
+            colour_distance=_colour_distance(np.asarray(masks), rgb, i, j, strip_px),
+            outline_fraction=_outline_fraction(np.asarray(masks), small, large)))
+    return out
+
+
+def _colour_distance(masks: np.ndarray, rgb: np.ndarray, i: int, j: int, strip_px: int,
+                     skip_px: int = BLEED_PX) -> float:
+    """RGB distance of the mean colours of each id's pixels between ``skip_px`` and
+    ``skip_px + strip_px`` from the other (the first pixels may be the other's, by bleed)."""
+    mi, mj = masks == i, masks == j
+    dist_to_j = ndimage.distance_transform_edt(~mj)
+    dist_to_i = ndimage.distance_transform_edt(~mi)
+    side_i = _strip(mi, dist_to_j, skip_px, strip_px)
+    side_j = _strip(mj, dist_to_i, skip_px, strip_px)
+    if not side_i.any() or not side_j.any():
+        return float("inf")
+    col = np.asarray(rgb, dtype=np.float64)[..., :3]
+    return float(np.linalg.norm(col[side_i].mean(axis=0) - col[side_j].mean(axis=0)))
+
+
+def _strip(own: np.ndarray, dist_to_other: np.ndarray, skip_px: int, strip_px: int
+           ) -> np.ndarray:
+    """(H, W) bool: ``own`` pixels between ``skip_px`` and ``skip_px + strip_px`` from the
+    other id; all those within ``skip_px + strip_px`` when the piece is thinner than that
+    (a sliver: every pixel of it is its own)."""
+    near = own & (dist_to_other <= skip_px + strip_px)
+    inner = near & (dist_to_other > skip_px)
+    return inner if inner.any() else near
+
+
+def _outline_fraction(masks: np.ndarray, small: int, large: int) -> float:
+    """Outline pixels of ``small`` that touch ``large`` (4-neighbourhood), over all its
+    outline pixels."""
+    ms = masks == small
+    outline = ms & ~ndimage.binary_erosion(ms, border_value=0)
+    touching = outline & ndimage.binary_dilation(masks == large)
+    return float(touching.sum()) / max(int(outline.sum()), 1)
+
+
+def fragment_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
+                     protected_ids: Iterable[int] = ()) -> dict[int, tuple[int, str]]:
+    """``{fragment id: (the id of the object it is part of, why)}`` (see the module
+    docstring). ``protected_ids``: ids that are whole objects (they have a shape prior)."""
+    protected = set(int(i) for i in protected_ids)
+    parent: dict[int, tuple[int, str]] = {}
+    evidence = sorted(boundary_evidence(masks, depth_m, rgb), key=lambda e: -e.pairs)
+    for ev in evidence:
+        if not ev.is_one_object():
+            continue
+        small, large = ev.small_id, ev.large_id
+        if small in protected:
+            if large in protected:
+                continue
+            small, large = large, small
+        if small in parent:
+            continue
+        parent[small] = (large, ev.describe())
+    # resolve chains; a cycle cannot form (each id has one parent, chosen once) except
+    # through a swap above: break it by dropping the later link
+    resolved: dict[int, tuple[int, str]] = {}
+    for frag, (par, why) in parent.items():
+        seen = {frag}
+        while par in parent and par not in seen:
+            seen.add(par)
+            par = parent[par][0]
+        if par != frag:
+            resolved[frag] = (par, why)
+    return resolved
+
+
+def merge_masks(masks: np.ndarray, parents: dict[int, tuple[int, str]]) -> np.ndarray:
+    """(H, W) ``masks`` with every fragment id replaced by its parent's."""
+    out = np.asarray(masks).copy()
+    for frag, (par, _) in parents.items():
+        out[out == frag] = par
+    return out

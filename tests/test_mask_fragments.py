@@ -1,0 +1,93 @@
+"""Mask ids that are pieces of one object (r2s/geometry/mask_fragments.py), on hand-made
+images whose answer is known: a box split in two by a line, a sliver along an occluder,
+two touching objects that are not one (different depth; same depth, different colour;
+a mask that bleeds onto its neighbour), and an id with a prior."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from r2s.geometry.mask_fragments import boundary_evidence, fragment_parents, merge_masks
+
+H, W = 80, 120
+
+
+def _plane_depth(z0: float = 0.8, slope_per_px: float = 0.0005) -> np.ndarray:
+    rows = np.arange(H, dtype=np.float64)[:, None]
+    return np.broadcast_to(z0 + slope_per_px * rows, (H, W)).copy()
+
+
+def _image(colour_left, colour_right, split_col: int) -> np.ndarray:
+    rgb = np.full((H, W, 3), 128, np.uint8)
+    rgb[20:60, 20:split_col] = colour_left
+    rgb[20:60, split_col:100] = colour_right
+    return rgb
+
+
+def test_a_split_box_is_one_object():
+    """One box face (a sloped, continuous depth; one colour) cut by a vertical line into
+    ids 1 and 7: 7 (the smaller) goes to 1; the merged mask is the box's."""
+    masks = np.zeros((H, W), np.int32)
+    masks[20:60, 20:70] = 1
+    masks[20:60, 70:100] = 7
+    depth = _plane_depth()
+    rgb = _image((200, 40, 40), (200, 40, 40), 70)
+    parents = fragment_parents(masks, depth, rgb)
+    assert list(parents) == [7] and parents[7][0] == 1
+    merged = merge_masks(masks, parents)
+    assert set(np.unique(merged)) == {0, 1} and (merged == 1).sum() == 40 * 80
+
+
+def test_objects_at_different_depths_are_not_merged():
+    """Same colour, but the right one stands 40 mm in front: a depth jump along the
+    whole boundary."""
+    masks = np.zeros((H, W), np.int32)
+    masks[20:60, 20:70], masks[20:60, 70:100] = 1, 2
+    depth = _plane_depth()
+    depth[:, 70:] -= 0.04
+    assert fragment_parents(masks, depth, _image((90, 90, 200), (90, 90, 200), 70)) == {}
+
+
+def test_touching_objects_of_different_colour_are_not_merged_even_with_bleed():
+    """Two boxes side by side at the same depth (continuous across the boundary) but of
+    different colours; id 2's mask bleeds 3 px onto id 1 (so its first pixels carry id 1's
+    colour): not merged."""
+    masks = np.zeros((H, W), np.int32)
+    masks[20:60, 20:67], masks[20:60, 67:100] = 1, 2  # 2 bled 3 px past the edge at 70
+    rgb = _image((200, 40, 40), (40, 160, 60), 70)
+    assert fragment_parents(masks, _plane_depth(), rgb) == {}
+    ev = boundary_evidence(masks, _plane_depth(), rgb)[0]
+    assert ev.continuous_fraction == 1.0 and ev.colour_distance > 100
+
+
+def test_a_sliver_goes_to_its_object_and_a_prior_is_never_a_fragment():
+    """A 2-px strip of an object given id 9: it goes to the object. With a prior on 9
+    (a prior is a whole object) the larger id goes to 9 instead; with priors on both,
+    nothing is merged."""
+    masks = np.zeros((H, W), np.int32)
+    masks[20:60, 20:98], masks[20:60, 98:100] = 4, 9
+    rgb = _image((30, 30, 30), (30, 30, 30), 98)
+    depth = _plane_depth()
+    assert fragment_parents(masks, depth, rgb)[9][0] == 4
+    assert fragment_parents(masks, depth, rgb, protected_ids=[9])[4][0] == 9
+    assert fragment_parents(masks, depth, rgb, protected_ids=[4, 9]) == {}
+
+
+def test_corrected_input_relabels_a_fragment_and_drops_its_object():
+    """Through the hook every stage uses: the split piece's pixels carry the object's id,
+    its ObjectSpec is gone, one warning line names the merge, merged_ids records it."""
+    from r2s.io.input_scene import Camera, InputScene, ObjectSpec
+    from r2s.scene_model import corrected_input
+
+    masks = np.zeros((H, W), np.int32)
+    masks[20:60, 20:70], masks[20:60, 70:100] = 1, 7
+    cam = Camera(K=np.array([[100.0, 0, 60], [0, 100.0, 40], [0, 0, 1]]),
+                 world_from_camera=np.eye(4), width=W, height=H)
+    scene = InputScene(rgb=_image((200, 40, 40), (200, 40, 40), 70),
+                       depth_m=_plane_depth().astype(np.float32), masks=masks, camera=cam,
+                       objects=[ObjectSpec(1, "box"), ObjectSpec(7, "object_7")])
+    out = corrected_input(scene, {})
+    assert out.ids == [1] and out.merged_ids == {7: 1}
+    assert (out.masks == 1).sum() == 40 * 80 and not (out.masks == 7).any()
+    assert len(out.warnings) == 1 and "instance 7 is taken as part of instance 1" in out.warnings[0]
+    assert corrected_input(scene, {}, merge_fragments=False).ids == [1, 7]
