@@ -180,11 +180,15 @@ def main() -> None:
     ap.add_argument("--table-only", action="store_true",
                     help="only rebuild the table from the scenes' metrics")
     ap.add_argument("--out", type=Path, default=None, help="markdown file to update")
+    ap.add_argument("--only", choices=[v for v, _ in VARIANTS], default=None,
+                    help="make and run only this set (the table then has only its rows)")
     args = ap.parse_args()
 
     rows = []
     for k in range(args.scenes):
         for variant, _ in VARIANTS:
+            if args.only and variant != args.only:
+                continue
             scene = make_scene(args.root, k, variant, args)
             run = {} if args.table_only else run_scene(scene, args.rerun, args.texture)
             if args.table_only:

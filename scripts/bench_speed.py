@@ -24,6 +24,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "scripts"))
+sys.path.insert(0, str(REPO))  # the child measures this tree's r2s, not an installed one
 
 from doc_block import write_generated_block  # noqa: E402
 
@@ -32,41 +33,57 @@ STAGES = ("init", "graph", "geomopt", "physopt", "texture", "export", "evaluate"
 
 def child(scene: Path) -> dict:
     """One full ``r2s run`` in this process with timers around the parts of interest."""
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
+    import r2s.runner.base as base
     import r2s.runner.pipeline as pipeline
     from r2s.runner.registry import get_stage
 
     for name in STAGES:
         get_stage(name)
-    imports_s = time.perf_counter() - t0
-    timers = {"sdf_s": 0.0, "physopt_pybullet_s": 0.0}
+    imports_s, imports_cpu_s = time.perf_counter() - t0, time.process_time() - c0
+    timers = {"sdf_s": 0.0, "physopt_pybullet_s": 0.0, "sdf_cpu_s": 0.0,
+              "physopt_pybullet_cpu_s": 0.0}
+    cpu: dict[str, float] = {}
+    inner = base._run_stage_locked
+
+    def cpu_timed(spec, *a, **k):
+        c = time.process_time()
+        try:
+            return inner(spec, *a, **k)
+        finally:
+            cpu[f"{spec.name}_cpu_s"] = cpu.get(f"{spec.name}_cpu_s", 0.0) \
+                + time.process_time() - c
+
+    base._run_stage_locked = cpu_timed
 
     def timed(module, attr: str, key: str) -> None:
         fn = getattr(module, attr)
 
         def wrapper(*a, **k):
-            s = time.perf_counter()
+            s, c = time.perf_counter(), time.process_time()
             try:
                 return fn(*a, **k)
             finally:
                 timers[key] += time.perf_counter() - s
+                timers[key.replace("_s", "_cpu_s")] += time.process_time() - c
 
         setattr(module, attr, wrapper)
 
     import r2s.physopt.object_opt as object_opt
+    import r2s.physopt.solve as physopt_solve
     import r2s.sim.diffsim.obstacles as obstacles
     import r2s.stages.geomopt as geomopt_stage
-    import r2s.stages.physopt as physopt_stage
 
     for module in (geomopt_stage, object_opt, obstacles):
         timed(module, "compute_sdf", "sdf_s")
     for attr in ("depenetrate_scene", "verify_and_repair"):
-        timed(physopt_stage, attr, "physopt_pybullet_s")
+        timed(physopt_solve, attr, "physopt_pybullet_s")
     t1 = time.perf_counter()
     results = pipeline.run_pipeline(scene)
     run_s = time.perf_counter() - t1
-    return {"imports_s": imports_s, "run_s": run_s, "total_s": time.perf_counter() - t0,
-            **timers, **{f"{r.name}_s": r.seconds for r in results}}
+    return {"imports_s": imports_s, "imports_cpu_s": imports_cpu_s, "run_s": run_s,
+            "total_s": time.perf_counter() - t0, **timers, **cpu,
+            **{f"{r.name}_s": r.seconds for r in results}}
 
 
 CPU_S: dict[str, list[float]] = {}
@@ -165,21 +182,31 @@ def main() -> None:
         for k in range(args.repeats):
             scene = input_copy(source, args.work / f"run{count}_{k}")
             t0 = time.perf_counter()
+            before = resource.getrusage(resource.RUSAGE_CHILDREN)
             out = subprocess.run([py, __file__, "--child", str(scene)], cwd=REPO, check=True,
                                  capture_output=True, text=True)
             wall = time.perf_counter() - t0
-            runs.append({**json.loads(out.stdout.strip().splitlines()[-1]), "wall_s": wall})
+            after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            runs.append({**json.loads(out.stdout.strip().splitlines()[-1]), "wall_s": wall,
+                         "cpu_s": after.ru_utime - before.ru_utime
+                         + after.ru_stime - before.ru_stime})
         last = args.work / f"run{count}_{args.repeats - 1}"
         label = f"{n_obj} objects"
-        rows.append((f"**{label}: `r2s run` end to end** (process wall)",
-                     f"**{median([r['wall_s'] for r in runs]):.1f} s**"))
-        rows.append((f"{label}: imports of all stages", f"{median([r['imports_s'] for r in runs]):.2f} s"))
+
+        def both(key: str) -> str:
+            return (f"{median([r[f'{key}_s'] for r in runs]):.2f} s "
+                    f"(CPU {median([r.get(f'{key}_cpu_s', float('nan')) for r in runs]):.2f} s)")
+
+        rows.append((f"**{label}: `r2s run` end to end** (process wall, CPU of the process)",
+                     f"**{median([r['wall_s'] for r in runs]):.1f} s (CPU "
+                     f"{median([r['cpu_s'] for r in runs]):.1f} s)**"))
+        rows.append((f"{label}: imports of all stages", both("imports")))
         for name in STAGES:
-            rows.append((f"{label}: {name}", f"{median([r[f'{name}_s'] for r in runs]):.2f} s"))
+            rows.append((f"{label}: {name}", both(name)))
         rows.append((f"{label}: physopt's PyBullet checks (depenetrate + verify/repair)",
-                     f"{median([r['physopt_pybullet_s'] for r in runs]):.2f} s"))
+                     both("physopt_pybullet")))
         rows.append((f"{label}: SDF building (geomopt + physopt)",
-                     f"{median([r['sdf_s'] for r in runs]):.2f} s"))
+                     both("sdf")))
         rows += noop_rows(py, last, label, args.repeats)
     write_table(args, rows, "speed")
 

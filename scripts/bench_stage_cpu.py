@@ -92,6 +92,9 @@ def main() -> None:
         return
     if args.old is None or not args.scenes:
         ap.error("--old and at least one scene are needed")
+    # the children run in the source trees: every path absolute
+    args.old, args.work = args.old.resolve(), args.work.resolve()
+    args.scenes = [s.resolve() for s in args.scenes]
     for scene in args.scenes:
         runs: dict[str, list[dict]] = {"old": [], "new": []}
         dirs: dict[str, list[Path]] = {"old": [], "new": []}

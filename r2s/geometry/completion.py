@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import trimesh
@@ -170,7 +171,9 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
                          hull_margin_m: float = 0.0, outlier_factor: float = 4.0,
                          view: CarveView | None = None,
                          extend_fraction: float = EXTEND_FRACTION,
-                         extend_max_m: float = EXTEND_MAX_M) -> CompletedShape:
+                         extend_max_m: float = EXTEND_MAX_M,
+                         exclude: Callable[[np.ndarray], np.ndarray] | None = None
+                         ) -> CompletedShape:
     """Complete a watertight mesh from one partial view of an object on a plane.
 
     Parameters
@@ -190,6 +193,8 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
     view : the depth view to carve against (see the module docstring), or None.
     extend_fraction, extend_max_m : how far the footprint may be swept towards the camera
         into space hidden by something nearer (with a view; 0 = not at all).
+    exclude : world points (M, 3) -> (M,) bool, space another object owns
+        (:func:`r2s.geometry.hidden_partition.exclusion`), removed like seen free space.
 
     Returns
     -------
@@ -265,7 +270,10 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
     field = np.clip(field, -cell, cell)
     carved_fraction = 0.0
     if view is not None:
-        field, carved_fraction = _carve(field, view, world_from_pl, xs, ys, zs, cell)
+        field, carved_fraction = _carve(field, lambda p: seen_free(view, p), world_from_pl,
+                                        xs, ys, zs, cell)
+    if exclude is not None:
+        field, _ = _carve(field, exclude, world_from_pl, xs, ys, zs, cell)
     field = np.pad(field, 1, mode="constant", constant_values=-cell)
     # a node exactly on the level set makes degenerate triangles: nudge it outside
     field[np.abs(field) < 1e-6 * cell] = -1e-6 * cell
@@ -324,16 +332,18 @@ def _hidden_extension(sdf: np.ndarray, top: np.ndarray, gx: np.ndarray, gy: np.n
     return hidden | (near & ndimage.binary_dilation(hidden, iterations=2))
 
 
-def _carve(field: np.ndarray, view: CarveView, world_from_pl: np.ndarray, xs: np.ndarray,
-           ys: np.ndarray, zs: np.ndarray, cell: float) -> tuple[np.ndarray, float]:
-    """``field`` (nx, ny, nz), positive inside, with the nodes the camera saw past set
+def _carve(field: np.ndarray, is_free: Callable[[np.ndarray], np.ndarray],
+           world_from_pl: np.ndarray, xs: np.ndarray, ys: np.ndarray, zs: np.ndarray,
+           cell: float) -> tuple[np.ndarray, float]:
+    """``field`` (nx, ny, nz), positive inside, with the nodes ``is_free`` says (world
+    points (M, 3) -> (M,) bool: the camera saw past them, or another object owns them) set
     outside and small leftover pieces dropped; and the share of inside nodes removed.
     When carving would leave nothing, the field is returned unchanged (share 1.0)."""
     inside = np.argwhere(field > 0)
     if len(inside) == 0:
         return field, 0.0
     nodes = np.c_[xs[inside[:, 0]], ys[inside[:, 1]], zs[inside[:, 2]]]
-    free = seen_free(view, transform_points(world_from_pl, nodes))
+    free = is_free(transform_points(world_from_pl, nodes))
     if not free.any():
         return field, 0.0
     out = field.copy()

@@ -67,3 +67,27 @@ def untextured(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     except Exception:
         pass
     return out
+
+
+def _triangle_rows(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh's triangles independent of vertex and face order: the sorted distinct
+    vertices (U, 3) and, per face, their ranks in that list (F, 3), each face rotated to
+    start at its lowest rank (winding kept), rows sorted."""
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    unique, inverse = np.unique(vertices, axis=0, return_inverse=True)
+    ranks = inverse.reshape(-1)[np.asarray(mesh.faces, dtype=np.int64)]
+    start = np.argmin(ranks, axis=1)
+    rows = ranks[np.arange(len(ranks))[:, None], (start[:, None] + np.arange(3)) % 3]
+    return unique, rows[np.lexsort(rows.T[::-1])]
+
+
+def same_triangles(a: trimesh.Trimesh, b: trimesh.Trimesh) -> bool:
+    """Whether two meshes hold exactly the same triangles (same vertex coordinates, same
+    winding), whatever the order of their vertices and faces. A triangle with a repeated
+    vertex may compare unequal to itself rotated (a false "different", never a false
+    "same")."""
+    if len(a.faces) != len(b.faces):
+        return False
+    ua, ra = _triangle_rows(a)
+    ub, rb = _triangle_rows(b)
+    return ua.shape == ub.shape and bool(np.array_equal(ua, ub)) and bool(np.array_equal(ra, rb))

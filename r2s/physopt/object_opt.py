@@ -22,6 +22,7 @@ import torch
 
 from r2s.geometry.sdf import compute_sdf
 from r2s.physopt.params import ObjectParams, Params
+from r2s.sim.adam import Adam  # torch.optim.Adam's steps without importing torch._dynamo
 from r2s.sim.diffsim import (init, make_plane, obstacle_from_grid, rollout, sim_velocity_loss,
                              static_wrench_residual, system_from_mesh, world_from_object)
 
@@ -89,7 +90,7 @@ def _optimise_one(mesh, p: ObjectParams, plane, obstacles: tuple, gravity, opt
     dc = torch.zeros(3, dtype=dtype, requires_grad=True)
     f0 = float(np.clip((p.friction - lo_f) / (hi_f - lo_f), 0.02, 0.98))
     fl = torch.tensor(np.log(f0 / (1 - f0)), dtype=dtype, requires_grad=True)
-    optim = torch.optim.Adam([{"params": [t], "lr": 1e-3}, {"params": [rv], "lr": 5e-3},
+    optim = Adam([{"params": [t], "lr": 1e-3}, {"params": [rv], "lr": 5e-3},
                               {"params": [dc], "lr": 2e-3}, {"params": [fl], "lr": 0.2}])
     best = (float("inf"), None)
     sigma_t, sigma_r = opt.anchor_translation_m, np.radians(opt.anchor_rotation_deg)

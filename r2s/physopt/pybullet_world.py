@@ -7,6 +7,7 @@ Frames: poses are ``world_from_object`` (4, 4); COM in the object frame.
 
 from __future__ import annotations
 
+import hashlib
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -69,12 +70,32 @@ def build_world(bodies: Sequence[SimBody], support_point: Sequence[float],
         files = []
         for k, piece in enumerate(body.pieces):
             f = Path(tmp.name) / f"{body.id}_{k}.obj"
-            piece.export(f)
+            f.write_bytes(_obj_bytes(piece))
             files.append(f)
         ids[body.id] = add_rigid_body(client, files, body.world_from_object, body.mass_kg,
                                       body.com_in_object, body.friction)
         coms[body.id] = np.asarray(body.com_in_object, dtype=float)
     return World(client, ids, coms, tmp, tuple(float(g) for g in gravity))
+
+
+_OBJ_TEXT: dict[bytes, bytes] = {}
+"""OBJ files of convex pieces by content (the repair rounds build dozens of worlds from the
+same pieces; trimesh's OBJ writer takes most of a world's Python time)."""
+
+
+def _obj_bytes(piece: trimesh.Trimesh) -> bytes:
+    """The OBJ file of the piece's vertices and faces, as trimesh writes it for a plain
+    piece (what ``piece.export`` wrote here before), remembered by those arrays."""
+    v = np.ascontiguousarray(piece.vertices, dtype=np.float64)
+    f = np.ascontiguousarray(piece.faces, dtype=np.int64)
+    key = hashlib.sha1(v.tobytes() + b"|" + f.tobytes()).digest()
+    text = _OBJ_TEXT.get(key)
+    if text is None:
+        if len(_OBJ_TEXT) >= 4096:
+            _OBJ_TEXT.clear()
+        data = trimesh.Trimesh(v, f, process=False).export(file_type="obj")
+        text = _OBJ_TEXT[key] = data.encode() if isinstance(data, str) else data
+    return text
 
 
 def com_world(pose: np.ndarray, com: np.ndarray) -> np.ndarray:

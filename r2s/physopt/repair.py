@@ -51,7 +51,38 @@ def world_factory(pieces: dict, state: SceneState, order: list[int],
                   for i in (body_order or order)]
         return build_world(bodies, state.support.point, state.support.normal,
                            settings.support_friction, state.gravity)
+    make_world.checked = {}  # type: ignore[attr-defined]  # the rollouts' memo (_remembered)
+    make_world.order = list(order)  # type: ignore[attr-defined]
     return make_world
+
+
+def _remembered(make_world: MakeWorld, key: tuple, rollout: Callable[[], dict]) -> dict:
+    """``rollout()`` (a dict of one rollout's results in fresh worlds), remembered on
+    ``make_world`` under ``key`` when it is :func:`world_factory`'s: a fresh PyBullet world
+    is deterministic, and the repair rounds often repeat a rollout (a round that changed
+    nothing; the unbounded attempt's first check, which is the bounded attempt's)."""
+    memo = getattr(make_world, "checked", None)
+    if memo is None:
+        return rollout()
+    if key not in memo:
+        memo[key] = rollout()
+    return {i: v.copy() if isinstance(v, np.ndarray) else v for i, v in memo[key].items()}
+
+
+def _check_key(params: Params, orders: list[list[int]], duration_s: float) -> tuple:
+    """Everything a fresh world of :func:`world_factory` takes from ``params``, exactly."""
+    bodies = tuple((i, params[i].world_from_object.tobytes(), params[i].mass_kg,
+                    params[i].movable, params[i].com_in_object.tobytes(), params[i].friction)
+                   for i in sorted({i for o in orders for i in o}))
+    return bodies, tuple(tuple(o) for o in orders), duration_s
+
+
+def _rollout_key(make_world: MakeWorld, params: Params, started: list[int], kind: str,
+                 *settings: float) -> tuple:
+    """The key of a rollout in a world of ``make_world``'s default body order, started
+    from the poses of ``started``."""
+    return (kind, tuple(started), *settings) + _check_key(
+        params, [list(getattr(make_world, "order", started))], 0.0)
 
 
 def depenetrate_scene(make_world: MakeWorld, params: Params, order: list[int],
@@ -106,7 +137,15 @@ def com_repair(world: World, oid: int, p: ObjectParams, max_step_m: float
 def check(make_world: MakeWorld, params: Params, orders: list[list[int]],
           duration_s: float) -> Drift:
     """The judge's test, in fresh worlds: per object the worst (translation m, rotation
-    deg) over ``orders`` of body creation."""
+    deg) over ``orders`` of body creation.
+
+    Remembered for the same parameters (:func:`_remembered`)."""
+    return _remembered(make_world, ("check",) + _check_key(params, orders, duration_s),
+                       lambda: _check(make_world, params, orders, duration_s))
+
+
+def _check(make_world: MakeWorld, params: Params, orders: list[list[int]],
+           duration_s: float) -> Drift:
     worst: Drift = {}
     for order in orders:
         world = make_world(params, order)
@@ -191,12 +230,18 @@ def settle_round(make_world: MakeWorld, params: Params, order: list[int], rnd: i
     with a ``bound`` one that carries an object beyond the observation tolerance, and with
     ``only`` the move of an object outside it, is refused (the object keeps its pose)."""
     params = dict(params)
-    world = make_world(params)
-    try:
-        start = {i: params[i].world_from_object for i in order}
-        settled = settle(world, start, settings.settle_duration_s, settings.settle_reset_steps)
-    finally:
-        world.close()
+    start = {i: params[i].world_from_object for i in order}
+
+    def rollout() -> dict:
+        world = make_world(params)
+        try:
+            return settle(world, start, settings.settle_duration_s, settings.settle_reset_steps)
+        finally:
+            world.close()
+
+    settled = _remembered(make_world, _rollout_key(make_world, params, order, "settle",
+                                                   settings.settle_duration_s,
+                                                   settings.settle_reset_steps), rollout)
     last = rnd == settings.max_rounds
     limit = settings.final_settle_shift_m if last else settings.max_settle_shift_m
     for i in order:
@@ -230,12 +275,18 @@ def damped_rest(make_world: MakeWorld, params: Params, order: list[int],
     still = set(settings.moving(current))
     held = {i: replace(params[i], movable=params[i].movable and i in still) for i in order} \
         if movers_only else params
-    world = make_world(held)
-    try:
-        start = {i: params[i].world_from_object for i in order}
-        rest = settle_damped(world, start, settings.rest_duration_s, settings.rest_damping)
-    finally:
-        world.close()
+    start = {i: params[i].world_from_object for i in order}
+
+    def rollout() -> dict:
+        world = make_world(held)
+        try:
+            return settle_damped(world, start, settings.rest_duration_s, settings.rest_damping)
+        finally:
+            world.close()
+
+    rest = _remembered(make_world, _rollout_key(make_world, held, order, "damped",
+                                                settings.rest_duration_s,
+                                                settings.rest_damping), rollout)
     what = "damped rest (" + ("moving objects only" if movers_only else "whole scene") + ")"
     shifts = {i: float(np.linalg.norm(rest[i][:3, 3] - start[i][:3, 3])) for i in order}
     worst = max(shifts, key=shifts.get)

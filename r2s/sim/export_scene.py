@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
+import trimesh
 from pydantic import BaseModel, ConfigDict, Field
 
 from r2s.console import ProgressFn, silent_progress
@@ -21,7 +22,7 @@ from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexMethod, ConvexParams
 from r2s.geometry.mass_properties import mass_properties
 from r2s.io.export_writer import ExportBody, write_export
-from r2s.io.mesh_io import load_mesh, welded
+from r2s.io.mesh_io import load_mesh, same_triangles, welded
 from r2s.io.paths import ScenePaths
 from r2s.io.scene_json import read_gt_scene
 from r2s.physical.provenance import resolve_physics
@@ -73,6 +74,10 @@ class ObjectItem:
     fitted: tuple[str, ...] = ()
     """Values a diagnose fit set ("friction", "com")."""
     from_gt: bool = False
+    collision_mesh_path: Optional[Path] = None
+    """A mesh whose convex pieces to use when it holds the same triangles as ``mesh_path``
+    (physopt's, whose pieces its checks verified: texture reorders the vertices, and V-HACD
+    depends on their order)."""
 
 
 def gt_items(paths: ScenePaths) -> tuple[list, dict, list[ObjectItem]]:
@@ -100,7 +105,8 @@ def build_and_write(out_dir: Path, gravity: list, support: dict, items: list[Obj
         progress(f"object {item.id}: convex decomposition", k / max(len(items), 1))
         mesh = load_mesh(item.mesh_path)
         geom = welded(mesh)
-        pieces = cached_convex_decomposition(geom, cache_dir, **params.convex.as_kwargs())
+        pieces = cached_convex_decomposition(_collision_geometry(item, geom), cache_dir,
+                                             **params.convex.as_kwargs())
         unit = mass_properties(geom, pieces, mass_kg=1.0)
         record = dict(label=item.label, mass_kg=item.mass_kg, friction=item.friction,
                       com=item.com, stage=item.stage, provenance=item.provenance,
@@ -121,6 +127,15 @@ def build_and_write(out_dir: Path, gravity: list, support: dict, items: list[Obj
     support.setdefault("friction", params.default_friction)
     write_export(out_dir, gravity, support, bodies, camera=camera)
     return bodies
+
+
+def _collision_geometry(item: ObjectItem, geom: trimesh.Trimesh) -> trimesh.Trimesh:
+    """What to decompose: the welded mesh of ``item.collision_mesh_path`` when it holds the
+    same triangles as ``geom`` (the item's welded mesh), else ``geom``."""
+    if item.collision_mesh_path is None or not Path(item.collision_mesh_path).is_file():
+        return geom
+    other = welded(load_mesh(item.collision_mesh_path))
+    return other if same_triangles(other, geom) else geom
 
 
 def export_ground_truth(scene_dir: Path, work_dir: Path) -> Path:

@@ -66,13 +66,24 @@ MAX_SHAPE_ARRAY = 16
 word; a body with more convex pieces is built from one multi-part OBJ instead."""
 
 
-def _multi_part_shape(client: int, files: Sequence[str]) -> int:
-    """One compound collision shape of all ``files`` (convex pieces, object frame): PyBullet
-    makes one convex hull per ``o`` part of an OBJ file, with no limit on their number."""
-    import tempfile
+_MULTI_PART_TEXT: dict[bytes, str] = {}
+"""The multi-part OBJ text of :func:`_multi_part_shape` by the content of its piece files
+(physopt builds dozens of worlds from the same pieces; reading them back is slow)."""
+
+
+def _multi_part_text(files: Sequence[str]) -> str:
+    """The pieces of ``files`` as one OBJ text, an ``o`` part each (remembered by content)."""
+    import hashlib
 
     import trimesh
 
+    h = hashlib.sha1()
+    for f in files:
+        h.update(Path(f).read_bytes())
+        h.update(b"\0")
+    key = h.digest()
+    if key in _MULTI_PART_TEXT:
+        return _MULTI_PART_TEXT[key]
     lines, offset = [], 0
     for k, f in enumerate(files):
         piece = trimesh.load(f, force="mesh", process=False)
@@ -81,9 +92,21 @@ def _multi_part_shape(client: int, files: Sequence[str]) -> int:
         lines += [f"f {a + offset} {b + offset} {c + offset}"
                   for a, b, c in np.asarray(piece.faces) + 1]
         offset += len(piece.vertices)
+    if len(_MULTI_PART_TEXT) >= 256:
+        _MULTI_PART_TEXT.clear()
+    text = _MULTI_PART_TEXT[key] = "\n".join(lines) + "\n"
+    return text
+
+
+def _multi_part_shape(client: int, files: Sequence[str]) -> int:
+    """One compound collision shape of all ``files`` (convex pieces, object frame): PyBullet
+    makes one convex hull per ``o`` part of an OBJ file, with no limit on their number."""
+    import tempfile
+
+    text = _multi_part_text(files)
     with tempfile.TemporaryDirectory(prefix="r2s-pieces-") as tmp:
         path = Path(tmp) / "pieces.obj"
-        path.write_text("\n".join(lines) + "\n")
+        path.write_text(text)
         return pb.createCollisionShape(pb.GEOM_MESH, fileName=str(path), physicsClientId=client)
 
 

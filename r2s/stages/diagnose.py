@@ -89,6 +89,10 @@ class Options(StageOptions):
     min_fitness: float = Field(0.6, ge=0, le=1, description="An object's shape fits the data when "
                                                             "this share of its points lies on it.")
     max_rmse_m: float = Field(0.004, gt=0, description="... and their RMS distance is below this.")
+    min_prior_points: int = Field(150, ge=0, description="A prior's scale counts as evidence "
+                                                         "of a depth bias only when its object "
+                                                         "is seen by at least this many points "
+                                                         "(fewer: its scale fit errs by ~20 %).")
     physics: bool = Field(True, description="Measure the physical residual (PyBullet rollout).")
     physics_source: Literal["auto", "init", "geomopt", "physopt"] = Field(
         "auto", description="State rolled out (auto: geomopt, else init).")
@@ -143,6 +147,7 @@ def settings_of(options: Options) -> MeasureSettings:
         prior_scale_sigma=options.prior_scale_sigma, prior_scale_dof=options.prior_scale_dof,
         table_shape_sigma_m=options.table_shape_sigma_m,
         min_fitness=options.min_fitness, max_rmse_m=options.max_rmse_m,
+        min_prior_points=options.min_prior_points,
         physics_source=options.physics_source, physics=options.physics,
         horizon_s=options.horizon_s, sigma_translation_m=options.sigma_translation_m,
         sigma_rotation_deg=options.sigma_rotation_deg,

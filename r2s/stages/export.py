@@ -70,15 +70,29 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
     except StageError:
         return []
     found = [paths.gt] if source == "gt" else [paths.stage_dir(source), paths.objects]
+    if _collision_stage(paths, source):
+        found.append(paths.stage_dir(_collision_stage(paths, source)))
     if options.observation:
         found += [paths.stage_dir("init"), paths.camera, paths.depth_png, paths.depth_npy,
                   paths.masks]
     return found
 
 
+def _collision_stage(paths: ScenePaths, source: str) -> str | None:
+    """physopt when the exported state is texture's and physopt's state exists: its meshes
+    hold the pieces physopt checked (:attr:`ObjectItem.collision_mesh_path`)."""
+    if source == "texture" and (paths.stage_dir("physopt") / "state.json").is_file():
+        return "physopt"
+    return None
+
+
 def _bodies_from_state(paths: ScenePaths, stage: str, model: dict
                        ) -> tuple[list, dict, list[ObjectItem]]:
     raw = read_state(paths.stage_dir(stage))
+    collision = _collision_stage(paths, stage)
+    collision_meshes = {o.id: paths.stage_dir(collision) / o.mesh
+                        for o in read_state(paths.stage_dir(collision)).objects} \
+        if collision else {}
     state = corrected_state(raw, model)
     items = []
     known = set(type(state.objects[0]).model_fields) if state.objects else set()
@@ -91,7 +105,8 @@ def _bodies_from_state(paths: ScenePaths, stage: str, model: dict
             friction=obj.friction, restitution=obj.restitution, stage=stage,
             provenance=extra.get("provenance"), fitted=_fitted(raw.object(obj.id), obj),
             extra={"source": obj.source, "stage": stage,
-                   **{k: v for k, v in extra.items() if _scalar(v)}}))
+                   **{k: v for k, v in extra.items() if _scalar(v)}},
+            collision_mesh_path=collision_meshes.get(obj.id)))
     return state.gravity, state.support.model_dump(), items
 
 

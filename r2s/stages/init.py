@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 import trimesh
@@ -42,6 +42,7 @@ from r2s.geometry.camera import backproject
 from r2s.geometry.carving import carve_view
 from r2s.geometry.colors import color_mesh_from_image, has_appearance
 from r2s.geometry.completion import complete_from_points
+from r2s.geometry.hidden_partition import Claimant, exclusion, overlaps
 from r2s.geometry.free_space import view_constraint
 from r2s.geometry.mask_edges import foreign_rim_pixels
 from r2s.geometry.point_cleanup import object_point_mask
@@ -148,6 +149,10 @@ class Options(StageOptions):
         True, description="Carve against the fitted support plane where the camera sees the "
                           "table (a 2 mm margin instead of the sensor's; see "
                           "geometry/carving.py).")
+    completion_partition_hidden: bool = Field(
+        True, description="Where two completed objects fill the same hidden space, give it "
+                          "to the one whose observed surface is nearer (a prior keeps all "
+                          "of its inside; see geometry/hidden_partition.py).")
     completion_extend_fraction: float = Field(
         0.0, ge=0, description="Sweep a completed object's footprint towards the camera "
                                "into space hidden by nearer things, by up to this fraction "
@@ -257,58 +262,58 @@ def _register(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, plane: Plane
 
 
 def _fit_priors(scene: InputScene, priors: dict[int, tuple[trimesh.Trimesh, RefinedPose]],
-                built: dict[int, tuple[trimesh.Trimesh, np.ndarray]], plane: PlaneFit,
-                o: Options) -> tuple[dict[int, tuple[trimesh.Trimesh, np.ndarray]],
-                                     dict[int, float]]:
-    """Each prior's mesh (object frame, coloured) and pose, fitted to its view and kept out
-    of the other objects when ``fit_view`` (geometry/prior_silhouette.py), and the
-    silhouette IoU of each fit against its own mask (empty without ``fit_view``); ``built``
-    holds the completed objects' (mesh, pose)."""
+                shapes: dict[int, tuple], plane: PlaneFit, o: Options) -> dict[int, float]:
+    """Set each prior's mesh (object frame, coloured) and pose in ``shapes`` (id ->
+    (mesh, world_from_object, registration or None)), fitted to its view and kept out of
+    the other objects when ``fit_view`` (geometry/prior_silhouette.py). Returns the
+    silhouette IoU of each fit against its own mask (empty without ``fit_view``)."""
     cam = scene.camera
     poses = {i: pose for i, (_, pose) in priors.items()}
     ious: dict[int, float] = {}
     if o.fit_view and priors:
         fixed = {}
-        for i, (mesh, pose) in built.items():
-            fixed[i] = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
-            fixed[i].apply_transform(pose)
+        for i, (mesh, pose, _) in shapes.items():
+            if i not in priors:
+                fixed[i] = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+                fixed[i].apply_transform(pose)
         fo = SilhouetteFitOptions(scale_bounds=(o.fit_view_scale_min, o.fit_view_scale_max),
                                   max_evaluations=o.fit_view_evaluations)
         fits = fit_priors_to_view(priors, fixed, cam.K, cam.world_from_camera, scene.depth_m,
                                   scene.masks, (plane.point, plane.normal), fo)
         poses = {i: f.pose for i, f in fits.items()}
         ious = {i: f.after.iou for i, f in fits.items()}
-    out = {}
     for i, pose in poses.items():
         mesh, world_from_object = pose.object_mesh(priors[i][0])
         if not has_appearance(mesh):
             mesh = color_mesh_from_image(mesh, world_from_object, scene.rgb, scene.depth_m,
                                          cam.K, cam.world_from_camera, scene.masks == i)
-        out[i] = (mesh, world_from_object)
-    return out, ious
+        shapes[i] = (mesh, world_from_object, shapes[i][2])
+    return ious
 
 
-def _fallback_to_completion(scene: InputScene, observed: dict, built: dict, regs: dict,
+def _fallback_to_completion(scene: InputScene, observed: dict, shapes: dict[int, tuple],
                             ious: dict[int, float], plane: PlaneFit, o: Options,
                             flags: list[str]) -> None:
-    """Replace (in ``built``, dropping ``regs``) each prior whose fitted silhouette IoU is
-    below ``prior_fallback_iou`` by the completion from the observation, with a flag."""
+    """Replace (in ``shapes``) each prior whose fitted silhouette IoU is below
+    ``prior_fallback_iou`` by the completion from the observation, with a flag."""
     specs = {spec.id: spec for spec in scene.objects}
     for i, iou in sorted(ious.items()):
         if iou >= o.prior_fallback_iou:
             continue
         pts, pix = observed[i]
         others = [observed[j][0] for j in observed if j != i]
-        built[i] = _complete(scene, specs[i], pts, pix,
-                             np.concatenate(others) if others else None, plane, o)
-        regs.pop(i, None)
+        mesh, world_from_object = _complete(scene, specs[i], pts, pix,
+                                            np.concatenate(others) if others else None,
+                                            plane, o)
+        shapes[i] = (mesh, world_from_object, None)
         flags.append(f"object {i}: its prior does not fit what the camera saw (silhouette "
                      f"IoU {iou:.2f} < {o.prior_fallback_iou:.2f}); completed from the "
                      "observation instead")
 
 
 def _complete(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, pix: np.ndarray,
-              others: Optional[np.ndarray], plane: PlaneFit, o: Options
+              others: Optional[np.ndarray], plane: PlaneFit, o: Options,
+              exclude: Optional[Callable[[np.ndarray], np.ndarray]] = None
               ) -> tuple[trimesh.Trimesh, np.ndarray]:
     """A closed, coloured mesh completed from the observation (object frame) and its pose;
     ``others`` are the other objects' points (what the object may stand on)."""
@@ -327,10 +332,68 @@ def _complete(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, pix: np.ndar
                                      cell_m=o.completion_cell_m, below_points_world=others,
                                      hull_margin_m=o.completion_hull_margin_px * pixel_m,
                                      view=view,
-                                     extend_fraction=o.completion_extend_fraction)
+                                     extend_fraction=o.completion_extend_fraction,
+                                     exclude=exclude)
     except ValueError as exc:
         raise StageError(f"object {spec.id}: completion failed ({exc})") from None
     return shape.mesh, shape.world_from_object
+
+
+def _save_object(spec: ObjectSpec, shape: tuple, pts: np.ndarray, out: Path, o: Options,
+                 table_extent_m: float
+                 ) -> tuple[ObjectState, trimesh.Trimesh, float, list[str]]:
+    """Write one object's mesh and points; its state entry, world-frame mesh, fit RMSE
+    and warning lines. ``shape`` = (mesh (object frame), world_from_object, registration
+    or None for a completed object)."""
+    mesh, world_from_object, reg = shape
+    if reg is not None:
+        source, fitness, rmse, scale = "prior", reg.fitness, reg.rmse_m, reg.scale
+    else:
+        source, scale = "completed", 1.0
+        mesh_w = mesh.copy()
+        mesh_w.apply_transform(world_from_object)
+        fitness, rmse = surface_fit(mesh_w, pts, o.icp_inlier_m, seed=o.seed)
+    flags = _result_flags(spec.id, float(fitness), mesh, table_extent_m)
+    save_mesh(mesh, out / "meshes" / f"{spec.id}.glb")
+    np.save(out / "points" / f"{spec.id}.npy", pts.astype(np.float32))
+    mesh_w = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    mesh_w.apply_transform(world_from_object)
+    state = ObjectState(
+        id=spec.id, label=spec.label, mesh=f"meshes/{spec.id}.glb",
+        world_from_object=world_from_object.tolist(), source=source,
+        icp_fitness=round(float(fitness), 6),
+        icp_rmse_m=float(rmse) if np.isfinite(rmse) else None, scale=float(scale),
+        observed_points=f"points/{spec.id}.npy", num_observed_points=int(len(pts)))
+    return state, mesh_w, float(rmse), flags
+
+
+def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple],
+                      plane: PlaneFit, o: Options) -> None:
+    """Complete again, in place in ``shapes``, every completed object whose first
+    completion overlaps another object, without the hidden space that the other owns
+    (:mod:`r2s.geometry.hidden_partition`); the overlaps are judged on the first
+    completions, so the split does not depend on the order of the objects."""
+    posed = {}
+    for obj_id, (mesh, world_from_object, _) in shapes.items():
+        m = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+        posed[obj_id] = m.apply_transform(world_from_object)
+    redo = {}
+    for spec in scene.objects:
+        if shapes[spec.id][2] is not None:
+            continue  # a registered prior keeps its shape
+        claimants = [Claimant(posed[j], observed[j][0], shapes[j][2] is not None)
+                     for j in shapes if j != spec.id]
+        if claimants and overlaps(posed[spec.id], claimants):
+            redo[spec.id] = exclusion(observed[spec.id][0], claimants)
+    for spec in scene.objects:
+        if spec.id not in redo:
+            continue
+        pts, pix = observed[spec.id]
+        others = [observed[j][0] for j in observed if j != spec.id]
+        mesh, world_from_object = _complete(
+            scene, spec, pts, pix, np.concatenate(others) if others else None, plane, o,
+            exclude=redo[spec.id])
+        shapes[spec.id] = (mesh, world_from_object, None)
 
 
 def _result_flags(obj_id: int, fitness: float, mesh: trimesh.Trimesh,
@@ -348,35 +411,28 @@ def _png_bytes(image: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def _save_objects(scene: InputScene, observed: dict, built: dict, regs: dict, out: Path,
-                  o: Options, flags: list[str], table_extent_m: float
-                  ) -> tuple[list[ObjectState], list[trimesh.Trimesh]]:
-    """Write each object's mesh and observed points; its state entry and world-frame mesh."""
-    objects: list[ObjectState] = []
-    posed: list[trimesh.Trimesh] = []
-    for spec in scene.objects:
-        pts = observed[spec.id][0]
-        mesh, world_from_object = built[spec.id]
-        mesh_w = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
-        mesh_w.apply_transform(world_from_object)
-        if spec.id in regs:
-            reg = regs[spec.id]
-            source, fitness, rmse, scale = "prior", reg.fitness, reg.rmse_m, reg.scale
+def _register_or_complete(scene: InputScene, observed: dict, plane: PlaneFit, o: Options,
+                          flags: list[str], progress
+                          ) -> tuple[dict[int, tuple[trimesh.Trimesh, RefinedPose]], dict]:
+    """Register every object with a prior (id -> (prior, registered pose)) and complete the
+    others; ``shapes``: id -> (mesh (object frame), world_from_object, registration or
+    None), the priors' meshes left None for :func:`_fit_priors`."""
+    n = len(scene.objects)
+    priors: dict[int, tuple[trimesh.Trimesh, RefinedPose]] = {}
+    shapes: dict[int, tuple] = {}
+    for k, spec in enumerate(scene.objects):
+        progress(f"object {spec.id}", 0.8 * k / max(n, 1))
+        pts, pix = observed[spec.id]
+        if spec.prior_mesh is not None:
+            prior, pose, reg = _register(scene, spec, pts, plane, o, flags)
+            priors[spec.id] = (prior, pose)
+            shapes[spec.id] = (None, None, reg)
         else:
-            source, scale = "completed", 1.0
-            fitness, rmse = surface_fit(mesh_w, pts, o.icp_inlier_m, seed=o.seed)
-        flags += _result_flags(spec.id, float(fitness), mesh, table_extent_m)
-        save_mesh(mesh, out / "meshes" / f"{spec.id}.glb")
-        np.save(out / "points" / f"{spec.id}.npy", pts.astype(np.float32))
-        posed.append(mesh_w)
-        objects.append(ObjectState(
-            id=spec.id, label=spec.label, mesh=f"meshes/{spec.id}.glb",
-            world_from_object=world_from_object.tolist(), source=source,
-            icp_fitness=round(float(fitness), 6),
-            icp_rmse_m=float(rmse) if np.isfinite(rmse) else None, scale=float(scale),
-            observed_points=f"points/{spec.id}.npy", num_observed_points=int(len(pts)),
-        ))
-    return objects, posed
+            others = [observed[j][0] for j in observed if j != spec.id]
+            mesh, world_from_object = _complete(
+                scene, spec, pts, pix, np.concatenate(others) if others else None, plane, o)
+            shapes[spec.id] = (mesh, world_from_object, None)
+    return priors, shapes
 
 
 def run(ctx: StageContext) -> dict:
@@ -400,27 +456,24 @@ def run(ctx: StageContext) -> dict:
     observed = {spec.id: _object_points(scene, spec.id, o, plane) for spec in scene.objects}
     flags: list[str] = list(scene.warnings)  # probably-wrong inputs and results, one line each
     table_extent_m = sanity.robust_extent_m(support)
-    n = len(scene.objects)
-    priors: dict[int, tuple[trimesh.Trimesh, RefinedPose]] = {}
-    built: dict[int, tuple[trimesh.Trimesh, np.ndarray]] = {}
-    regs: dict[int, RegistrationResult] = {}
-    for k, spec in enumerate(scene.objects):
-        ctx.progress(f"object {spec.id}", 0.8 * k / max(n, 1))
-        pts, pix = observed[spec.id]
-        if spec.prior_mesh is not None:
-            prior, pose, regs[spec.id] = _register(scene, spec, pts, plane, o, flags)
-            priors[spec.id] = (prior, pose)
-        else:
-            others = [observed[j][0] for j in observed if j != spec.id]
-            built[spec.id] = _complete(
-                scene, spec, pts, pix, np.concatenate(others) if others else None, plane, o)
+    priors, shapes = _register_or_complete(scene, observed, plane, o, flags, ctx.progress)
     ctx.progress("fit priors to the view", 0.8)
-    fitted, ious = _fit_priors(scene, priors, built, plane, o)
-    built.update(fitted)
-    _fallback_to_completion(scene, observed, built, regs, ious, plane, o, flags)
-    objects, posed = _save_objects(scene, observed, built, regs, out, o, flags,
-                                   table_extent_m)
-    rmses = [regs[i].rmse_m for i in regs]
+    ious = _fit_priors(scene, priors, shapes, plane, o)
+    _fallback_to_completion(scene, observed, shapes, ious, plane, o, flags)
+    if o.completion_partition_hidden:
+        ctx.progress("hidden space shared by completed objects", 0.9)
+        _partition_hidden(scene, observed, shapes, plane, o)
+    objects: list[ObjectState] = []
+    posed: list[trimesh.Trimesh] = []
+    rmses: list[float] = []
+    for spec in scene.objects:
+        state, mesh_w, rmse, more = _save_object(spec, shapes[spec.id], observed[spec.id][0],
+                                                 out, o, table_extent_m)
+        objects.append(state)
+        posed.append(mesh_w)
+        flags += more
+        if state.source == "prior":
+            rmses.append(rmse)
 
     ctx.progress("overlay", 0.95)
     rendered = render_instances(posed, cam.K, cam.world_from_camera, cam.width, cam.height)
@@ -439,7 +492,7 @@ def run(ctx: StageContext) -> dict:
     finite = [r for r in rmses if np.isfinite(r)]
     fitnesses = [float(ob.icp_fitness) for ob in objects]
     return {
-        "objects": n,
+        "objects": len(scene.objects),
         "completed": sum(1 for ob in objects if ob.source == "completed"),
         "mean_icp_rmse_mm": round(1000 * float(np.mean(finite)), 3) if finite else None,
         "min_fitness": round(min(fitnesses), 4) if fitnesses else None,

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from r2s.console import ProgressFn, silent_progress
+from r2s.sim.adam import Adam
 
 
 @dataclass(frozen=True)
@@ -171,7 +172,7 @@ def _refine(textures: Sequence[np.ndarray], samples: Sequence[PixelSamples],
     per_pixel_t = torch.as_tensor(per_pixel)
     n_obj_pixels = max(sum(1 for s in samples if s.count), 1)
 
-    opt = torch.optim.Adam([param], lr=options.lr)
+    opt = Adam([param], lr=options.lr)  # torch.optim.Adam's steps (r2s.sim.adam)
     result = RefineResult([])
     report_every = max(options.iterations // 20, 1)
     for it in range(options.iterations):

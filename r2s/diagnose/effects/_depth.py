@@ -3,27 +3,47 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Optional
 
 import numpy as np
+from scipy.stats import chi2
 
 from r2s.diagnose.data import Residuals
-from r2s.diagnose.effects._depth_model import (corrected_registration, corrected_support, correct_depth,
-                                      fit_bias)
+from r2s.diagnose.effects._depth_model import (corrected_registration, corrected_support,
+                                               correct_depth, fit_bias,
+                                               offset_information_from_priors,
+                                               offset_sigma_from_priors)
+from r2s.diagnose.stats.noise import mixed_sampling_bar, null_registrations, sampling_bar
+from r2s.diagnose.stats.table_offset import (MAX_TABLE_OFFSET_M, TableOffsetEvidence,
+                                             corrected_table)
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
 from r2s.io.input_scene import InputScene
 
 SIGNATURE = (
     "Priors of known (metric) size register to the observation with a common scale "
     "different from 1 across objects (depth scale), or with a scale that falls off as "
-    "1/depth (depth offset); ICP fits are otherwise good. A scale keeps the table's "
-    "normal; an offset turns it by a predictable amount (near points move by a larger "
-    "share of their depth). Fit: weighted least squares of log(prior scale) against the "
-    "bias model s + o s / (z - o) over the objects' observed depths z."
+    "1/depth (depth offset); ICP fits are otherwise good. A scale keeps the table a plane "
+    "with the same normal; an offset bends an obliquely seen table away from a plane "
+    "(near points move by a larger share of their depth) and turns its normal. Fit: "
+    "weighted least squares of log(prior scale) against the bias model s + o s / (z - o) "
+    "over the objects' observed depths z, with the offset that makes the table flattest "
+    "as one more observation of o (when the two agree)."
 )
+
+CONSISTENT_CHI2 = float(chi2.ppf(0.999, 1))
+"""The table's offset and the priors' offset must agree within this (chi-square, 1 dof)
+for the table to count as evidence of the offset; otherwise the table is bent by something
+else (reported by the structure test) and only the priors speak."""
 
 
 class DepthBiasEffect(Effect):
-    """``z_observed = s * z_true + o``; which of ``s``, ``o`` are free is per instance."""
+    """``z_observed = s * z_true + o``; which of ``s``, ``o`` are free is per instance.
+
+    Evidence: the prior scales (registration block) and, for an offset alone, the
+    table's shape (:mod:`r2s.diagnose.stats.table_offset`) when the priors agree with it.
+    ``depth_bias`` (scale and offset) uses the priors only: with the scale free they
+    cannot tell the table's offset from a bend that has another cause. Every fit predicts
+    the table's shape after it (so an offset that bends the table is scored by it)."""
 
     level = "input"
     evidence_block = "registration"
@@ -37,20 +57,97 @@ class DepthBiasEffect(Effect):
         self.preference = preference
         self.signature = SIGNATURE
 
-    def fit(self, residuals: Residuals) -> EffectFit:
+    def table_evidence(self, residuals: Residuals) -> tuple[Optional[TableOffsetEvidence], str]:
+        """The table's offset evidence when it counts for this effect, and why not when
+        it does not ("" when there is none to speak of)."""
+        # with the scale free too, the priors cannot veto the table's offset (a scale
+        # makes up for it at their depths): a bend from something else would be absorbed
+        if not self.fit_offset or self.fit_scale or residuals.table_shape is None:
+            return None, ""
+        ev = residuals.table_shape.offset_evidence()
+        if ev is None:
+            return None, ""
+        if abs(ev.offset_m) > MAX_TABLE_OFFSET_M:
+            return None, (f"the table's shape asks for an offset of {ev.offset_m * 1000:+.0f} mm, "
+                          f"beyond {MAX_TABLE_OFFSET_M * 1000:.0f} mm: not an offset")
         reg = residuals.registration
-        if reg is None or len(reg.used()) < self.n_params + 1:
+        if reg is not None and len(reg.used()) >= self.n_params + 1:
+            _, o_p = fit_bias(reg, self.fit_scale, True)
+            sig_p = offset_sigma_from_priors(reg, self.fit_scale, o_p)
+            if np.isfinite(sig_p) and ((o_p - ev.offset_m) ** 2
+                                       / (sig_p ** 2 + ev.sigma_m ** 2) > CONSISTENT_CHI2):
+                return None, (f"the table's shape asks for {ev.offset_m * 1000:+.1f} mm, the "
+                              f"priors for {o_p * 1000:+.1f} +- {sig_p * 1000:.1f} mm: they "
+                              "disagree, the table is not used")
+        return ev, ""
+
+    def fit(self, residuals: Residuals) -> EffectFit:
+        table, why_not = self.table_evidence(residuals)
+        fit = self.fit_with(residuals, table)
+        if why_not:
+            fit = replace(fit, note=f"{fit.note}; {why_not}")
+        return fit
+
+    def fit_with(self, residuals: Residuals, table: Optional[TableOffsetEvidence]) -> EffectFit:
+        """The fit with ``table`` as the table's evidence (None: the priors alone)."""
+        reg = residuals.registration
+        n_reg = len(reg.used()) if reg is not None else 0
+        # the table tells the offset, never the scale: an offset alone needs no prior
+        need = self.n_params + 1 if table is None else (2 if self.fit_scale else 0)
+        if n_reg < need:
             return not_identifiable(self.name, residuals,
-                                    f"needs at least {self.n_params + 1} objects with a metric "
+                                    f"needs at least {need} objects with a metric "
                                     "prior registered to the observation")
-        scale, offset = fit_bias(reg, self.fit_scale, self.fit_offset)
-        after = replace(residuals, registration=corrected_registration(reg, scale, offset))
+        scale, offset = fit_bias(reg if n_reg else None, self.fit_scale, self.fit_offset, table)
+        after = residuals
+        if n_reg:
+            after = replace(after, registration=corrected_registration(reg, scale, offset))
         if residuals.support is not None:
             after = replace(after, support=corrected_support(residuals.support, scale, offset))
+        if residuals.table_shape is not None:
+            after = replace(after, table_shape=corrected_table(residuals.table_shape, scale,
+                                                               offset))
         params = {"scale": scale, "offset_m": offset}
         size, unit = (scale, "") if self.fit_scale else (offset, "m")
+        note = self.describe(params)
+        if table is not None:
+            note += (f" (the table's shape alone: {table.offset_m * 1000:+.1f} +- "
+                     f"{table.sigma_m * 1000:.1f} mm)")
         return make_fit(self.name, residuals, after, params, self.n_params, size, unit,
-                        note=self.describe(params))
+                        note=note)
+
+    def noise_bar(self, residuals: Residuals, n_params: int, draws: int, quantile: float,
+                  seed: int) -> Optional[float]:
+        """What noise alone explains: the prior scales bootstrapped over objects (centred),
+        the table's offset drawn from its own noise (N(0, sigma_T)); at least the sampling
+        quantile of the combined estimate (:func:`mixed_sampling_bar`)."""
+        table, _ = self.table_evidence(residuals)
+        if table is None:
+            return super().noise_bar(residuals, n_params, draws, quantile, seed)
+        reg = residuals.registration
+        enough = reg is not None and len(reg.used()) >= 3
+        nulls = (list(null_registrations(reg, draws, seed)) if enough else [None] * draws)
+        rng = np.random.default_rng(seed + 1)
+        no_table = replace(residuals, table_shape=None)
+        values = []
+        for null in nulls:
+            drawn = TableOffsetEvidence(float(rng.normal(0.0, table.sigma_m)), table.sigma_m,
+                                        0.0)
+            fit = self.fit_with(replace(no_table, registration=null), drawn)
+            if fit.identifiable:
+                values.append(fit.explained_sse + drawn.explained(fit.params["offset_m"]))
+        boot = float(np.quantile(values, quantile)) if values else 0.0
+        if n_params == 1:
+            # the priors' share of the information, with their noise level's dof, even
+            # where too few to bootstrap
+            info_t = 1.0 / table.sigma_m ** 2
+            share = info_t / (info_t + offset_information_from_priors(reg))
+            bar = mixed_sampling_bar(reg.noise_dof if reg is not None else None, share,
+                                     quantile, seed=seed)
+        else:
+            bar = (sampling_bar(reg, n_params, quantile) if enough
+                   else float(chi2.ppf(quantile, n_params)))
+        return max(boot, bar)
 
     def apply_to_input(self, scene: InputScene, params: dict) -> InputScene:
         s = float(params.get("scale", 1.0))

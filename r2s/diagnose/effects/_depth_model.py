@@ -6,18 +6,22 @@ point along its ray by the factor ``z_obs / z_true = s + o / z_true``. An object
 observation needs the prior scaled by ``s + o s / (z_obs - o)`` (``z_obs``: the object's
 observed depth). A pure scale scales the whole scene about the camera centre (planes stay
 planes with the same normal, so the table says nothing about ``s``); an offset makes the
-apparent size depend on depth. From one view with objects at similar depths, ``s`` and
-``o`` are nearly collinear; the BIC then prefers the one-parameter versions.
+apparent size depend on depth, and bends an obliquely seen table
+(:mod:`r2s.diagnose.stats.table_offset`). From the priors of one view with objects at
+similar depths, ``s`` and ``o`` are nearly collinear; the BIC then prefers the
+one-parameter versions.
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Optional
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from r2s.diagnose.data import RegistrationData, ScaleObs, SupportData
+from r2s.diagnose.stats.table_offset import TableOffsetEvidence
 
 
 def apparent_scale(depth_obs_m: np.ndarray, scale: float, offset_m: float) -> np.ndarray:
@@ -31,14 +35,18 @@ def correct_depth(depth_m: np.ndarray, scale: float, offset_m: float) -> np.ndar
     return ((np.asarray(depth_m, dtype=np.float64) - offset_m) / scale).astype(np.asarray(depth_m).dtype)
 
 
-def fit_bias(data: RegistrationData, fit_scale: bool, fit_offset: bool) -> tuple[float, float]:
-    """Robust (Huber) least-squares (s, o) from per-object prior scales (log residuals).
+def fit_bias(data: Optional[RegistrationData], fit_scale: bool, fit_offset: bool,
+             table: Optional[TableOffsetEvidence] = None) -> tuple[float, float]:
+    """Robust (Huber) least-squares (s, o) from per-object prior scales (log residuals)
+    and, for ``o``, the table's shape (``table``: one more residual, ``(o - o_T) / sigma_T``).
 
     With only one of the two free, the other is held at its neutral value (1 or 0).
     """
-    used = data.used()
-    log_s = np.log([o.scale for o in used])
-    z = np.array([o.depth_m for o in used])
+    used = data.used() if data is not None else ()
+    log_s = np.log([o.scale for o in used]) if used else np.zeros(0)
+    z = np.array([o.depth_m for o in used], dtype=np.float64)
+    sigma = data.scale_sigma if data is not None else 1.0
+    use_table = table is not None and fit_offset
 
     def unpack(x: np.ndarray) -> tuple[float, float]:
         k = 0
@@ -53,16 +61,49 @@ def fit_bias(data: RegistrationData, fit_scale: bool, fit_offset: bool) -> tuple
 
     def fun(x: np.ndarray) -> np.ndarray:
         s, o = unpack(x)
-        return (log_s - np.log(apparent_scale(z, s, o))) / data.scale_sigma
+        r = (log_s - np.log(apparent_scale(z, s, o))) / sigma
+        if use_table:
+            r = np.append(r, (o - table.offset_m) / table.sigma_m)
+        return r
 
     x0 = []
     if fit_scale:
-        x0.append(float(np.mean(log_s)))
+        x0.append(float(np.mean(log_s)) if len(log_s) else 0.0)
     if fit_offset:
-        x0.append(0.0 if fit_scale else float(np.mean((np.exp(log_s) - 1.0) * z)))
+        if use_table:
+            x0.append(float(table.offset_m))
+        else:
+            x0.append(0.0 if fit_scale else float(np.mean((np.exp(log_s) - 1.0) * z)))
     # Huber: one prior that is far off in size (a bad prior, a bad fit) must not drag s
     sol = least_squares(fun, np.array(x0), loss="huber", f_scale=1.5)
     return unpack(sol.x)
+
+
+def offset_sigma_from_priors(data: Optional[RegistrationData], fit_scale: bool,
+                             offset_m: float) -> float:
+    """Standard error (m) of the offset fitted to the prior scales alone (linearised WLS;
+    with ``fit_scale`` the scale is free too). Infinite when they cannot tell it."""
+    used = data.used() if data is not None else ()
+    n_par = 2 if fit_scale else 1
+    if len(used) < n_par:
+        return float("inf")
+    z = np.array([o.depth_m for o in used], dtype=np.float64)
+    cols = [np.ones_like(z)] if fit_scale else []
+    cols.append(1.0 / np.maximum(z - offset_m, 1e-6))   # d log(apparent scale) / d o
+    J = np.stack(cols, axis=1) / data.scale_sigma
+    info = J.T @ J
+    if abs(np.linalg.det(info)) < 1e-12:
+        return float("inf")
+    return float(np.sqrt(np.linalg.inv(info)[-1, -1]))
+
+
+def offset_information_from_priors(data: Optional[RegistrationData]) -> float:
+    """Fisher information (1/m^2) of the prior scales about an offset alone."""
+    used = data.used() if data is not None else ()
+    if not used:
+        return 0.0
+    z = np.array([o.depth_m for o in used], dtype=np.float64)
+    return float(np.sum(1.0 / z ** 2) / data.scale_sigma ** 2)
 
 
 def corrected_registration(data: RegistrationData, scale: float,

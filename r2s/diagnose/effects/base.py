@@ -24,6 +24,7 @@ import numpy as np
 
 from r2s.diagnose.stats.blocks import blocks_of, total_n, total_sse
 from r2s.diagnose.data import Residuals
+from r2s.diagnose.stats.noise import noise_bar as registration_noise_bar
 from r2s.io.input_scene import Camera, InputScene
 from r2s.io.state import SceneState
 
@@ -159,6 +160,14 @@ class Effect:
     def compose(self, old: dict, new: dict) -> dict:
         """Parameters of applying ``old`` and then ``new`` (default: ``new`` replaces)."""
         return new
+
+    def noise_bar(self, residuals: Residuals, n_params: int, draws: int, quantile: float,
+                  seed: int) -> Optional[float]:
+        """The explained SSE noise alone reaches for this effect in this scene
+        (:func:`r2s.diagnose.stats.noise.noise_bar` over the prior scales; an effect with
+        other evidence overrides it)."""
+        return registration_noise_bar(lambda r: self.fit(r).explained_sse, residuals,
+                                      n_params, draws, quantile, seed)
 
     def describe(self, params: dict) -> str:
         """One line for the report."""

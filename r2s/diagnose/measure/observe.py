@@ -93,17 +93,19 @@ def fit_quality(inp: InputScene, obj: ObjectModel, seed: int = 0) -> FitQuality:
 
 def registration_residual(qualities: dict[int, FitQuality], scale_sigma: float,
                           min_fitness: float, prior_scale_sigma: float = 0.02,
-                          prior_scale_dof: float = 4.0) -> RegistrationData:
+                          prior_scale_dof: float = 4.0, min_points: int = 0) -> RegistrationData:
     """Per-object prior scales. The noise level is measured on them, pooled with a prior
     spread (:func:`r2s.diagnose.stats.noise.scale_noise_level`, ``scale_sigma`` its floor):
     priors err in size independently, a depth bias moves them all together, so their
     spread measures the priors' error."""
     objs = tuple(q.scale_obs for _, q in sorted(qualities.items()) if q.scale_obs is not None)
-    data = RegistrationData(objects=objs, scale_sigma=scale_sigma, min_fitness=min_fitness)
+    data = RegistrationData(objects=objs, scale_sigma=scale_sigma, min_fitness=min_fitness,
+                            min_points=min_points)
     logs = np.log([o.scale for o in data.used()])
     prior = (prior_scale_sigma, prior_scale_dof)
     sigma, dof = scale_noise_level(logs, scale_sigma, *prior)
     return RegistrationData(objects=objs, scale_sigma=sigma, min_fitness=min_fitness,
+                            min_points=min_points,
                             scale_floor=scale_sigma, noise_dof=dof, noise_prior=prior)
 
 

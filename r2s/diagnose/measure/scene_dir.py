@@ -57,6 +57,7 @@ class MeasureSettings:
     support_sigma_deg: float = 0.3
     table_shape_sigma_m: float = 0.001
     min_fitness: float = 0.6
+    min_prior_points: int = 150
     max_rmse_m: float = 0.004
     physics_source: str = "auto"
     physics: bool = True
@@ -173,7 +174,8 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
     qualities = measure_fit_qualities(inp, init_objects,
                                       lambda m, f: progress(m, 0.05 + 0.35 * f))
     registration = registration_residual(qualities, settings.scale_sigma, settings.min_fitness,
-                                         settings.prior_scale_sigma, settings.prior_scale_dof)
+                                         settings.prior_scale_sigma, settings.prior_scale_dof,
+                                         settings.min_prior_points)
     gravity = np.asarray(init_state.gravity, dtype=np.float64)
     support = support_residual(inp, gravity, float(np.radians(settings.support_sigma_deg)))
     progress("depth residual", 0.42)

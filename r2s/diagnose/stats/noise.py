@@ -93,3 +93,18 @@ def noise_bar(fit_explained: Callable[[Residuals], float], residuals: Residuals,
               for null in null_registrations(reg, draws, seed)]
     boot = float(np.quantile(values, quantile)) if values else 0.0
     return max(boot, sampling_bar(reg, n_params, quantile))
+
+
+def mixed_sampling_bar(dof: float | None, known_share: float, quantile: float,
+                       samples: int = 20000, seed: int = 0) -> float:
+    """:func:`sampling_bar` for a one-parameter effect whose estimate combines the prior
+    scales (noise level estimated with ``dof`` degrees of freedom; None: known) with a
+    second evidence of known noise level (the table's shape) that carries ``known_share``
+    of the Fisher information: the ``quantile`` of ``(sqrt(1 - w) t + sqrt(w) z)^2`` with
+    ``t`` Student's t (``dof``), ``z`` standard normal, ``w = known_share`` (Monte Carlo,
+    seeded). ``w = 0`` gives ``F(1, dof)``, ``w = 1`` gives ``chi2(1)``."""
+    w = float(np.clip(known_share, 0.0, 1.0))
+    rng = np.random.default_rng(seed)
+    t = rng.standard_t(dof, samples) if dof is not None else rng.standard_normal(samples)
+    z = rng.standard_normal(samples)
+    return float(np.quantile((np.sqrt(1.0 - w) * t + np.sqrt(w) * z) ** 2, quantile))

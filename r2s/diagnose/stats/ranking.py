@@ -19,7 +19,6 @@ from r2s.console import ProgressFn, silent_progress
 from r2s.diagnose.stats.blocks import blocks_of, total_n, total_sse
 from r2s.diagnose.data import Residuals
 from r2s.diagnose.effects.base import Effect, EffectFit
-from r2s.diagnose.stats.noise import noise_bar
 
 
 @dataclass(frozen=True)
@@ -96,8 +95,8 @@ def fit_effect(effect: Effect, residuals: Residuals, penalty: float,
     fit = replace(effect.fit(residuals), penalty=float(penalty))
     if (noise is not None and fit.identifiable and effect.evidence_block == "registration"
             and fit.score < -min_evidence):
-        bar = noise_bar(lambda r: effect.fit(r).explained_sse, residuals, fit.n_params,
-                        noise.draws, noise.quantile, noise.seed)
+        bar = effect.noise_bar(residuals, fit.n_params, noise.draws, noise.quantile,
+                               noise.seed)
         fit = replace(fit, noise_bar=bar)
     return fit
 
