@@ -119,7 +119,7 @@ def test_init_replaces_a_prior_that_does_not_fit_the_view_by_the_completion(tmp_
     K, world_from_camera = _oblique_view()
     scene = write_input_scene(tmp_path / "scene", objects, 320, 240,
                               K=default_camera(320, 240)[0], world_from_camera=world_from_camera)
-    result = run_stage(STAGE, scene, Options(icp_yaw_hypotheses=1))
+    result = run_stage(STAGE, scene, Options(icp_yaw_hypotheses=1, fit_view=True))
     state = read_state(ScenePaths(scene).stage_dir("init"))
     sources = {o.id: o.source for o in state.objects}
     assert sources == {1: "completed", 2: "prior"}

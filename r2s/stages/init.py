@@ -4,8 +4,8 @@ From ``input/`` alone: back-project the depth, fit the support plane on the pixe
 belong to no object, then per object either register its prior mesh to the observed
 points (robust visibility-aware ICP with a free-space term and a bounded scale; a global
 search when no pose is given) or, without a prior, complete a closed mesh from the
-observation (height field over the support plane). Registered priors are then fitted to
-their view (``fit_view``: pose and a bounded scale per axis against the silhouette, the
+observation (height field over the support plane). With ``fit_view`` (off by default),
+registered priors are then fitted to their view (pose and a bounded scale per axis against the silhouette, the
 depth, the free space and the support plane they rest on; priors reaching into other
 objects refitted with them as obstacles; geometry/prior_silhouette.py), and a prior that
 still does not match its mask is replaced by the completion. No dynamics here: settling
@@ -119,7 +119,7 @@ class Options(StageOptions):
     rest_on_support: bool = Field(False, description="With axis_scale: pull a prior whose "
                                   "bottom is within 20 mm of the support plane onto it (else "
                                   "only out of it).")
-    fit_view: bool = Field(True, description="After registration, fit each prior's pose "
+    fit_view: bool = Field(False, description="After registration, fit each prior's pose "
                            "and per-axis scale to its silhouette, depth, the free space "
                            "around it and the support plane it is seen resting on "
                            "(geometry/prior_silhouette.py).")
