@@ -14,13 +14,14 @@ never another object's.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Callable, Optional, Sequence
 
 import numpy as np
-import open3d as o3d
 import trimesh
 from scipy.spatial import cKDTree
+
+from r2s.geometry.sdf import occupancy, raycasting_scene
 
 
 @dataclass(frozen=True)
@@ -29,29 +30,39 @@ class Claimant:
 
     mesh_world : its closed mesh, world frame; points_world : (N, 3) its observed points
     (empty for none); is_prior : its shape is a registered prior (it owns all its inside).
+    Its inside test and the search tree of its points are built once, on creation, and
+    serve every object that asks.
     """
 
     mesh_world: trimesh.Trimesh
     points_world: np.ndarray
     is_prior: bool = False
+    _scene: object = field(init=False, repr=False, compare=False)
+    _tree: Optional[cKDTree] = field(init=False, repr=False, compare=False)
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_scene", raycasting_scene(self.mesh_world.vertices,
+                                                            self.mesh_world.faces))
+        pts = np.asarray(self.points_world, dtype=np.float64).reshape(-1, 3)
+        object.__setattr__(self, "_tree", cKDTree(pts) if len(pts) else None)
 
-def _occupancy(mesh: trimesh.Trimesh) -> Callable[[np.ndarray], np.ndarray]:
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
-                        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
-    lo, hi = mesh.bounds
+    @property
+    def has_points(self) -> bool:
+        return self._tree is not None
 
-    def inside(points: np.ndarray) -> np.ndarray:
+    def inside(self, points: np.ndarray) -> np.ndarray:
+        """(M,) bool: world points (M, 3) inside the mesh."""
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        lo, hi = self.mesh_world.bounds
         out = np.zeros(len(pts), dtype=bool)
         near = np.all((pts >= lo) & (pts <= hi), axis=1)
         if near.any():
-            q = o3d.core.Tensor(pts[near].astype(np.float32))
-            out[near] = scene.compute_occupancy(q, nsamples=3).numpy() > 0.5
+            out[near] = occupancy(self._scene, pts[near])
         return out
 
-    return inside
+    def distance_m(self, points: np.ndarray) -> np.ndarray:
+        """(M,) distance of world points (M, 3) to its nearest observed point."""
+        return self._tree.query(np.asarray(points, dtype=np.float64).reshape(-1, 3))[0]
 
 
 def overlaps(mesh_world: trimesh.Trimesh, others: Sequence[Claimant],
@@ -63,7 +74,7 @@ def overlaps(mesh_world: trimesh.Trimesh, others: Sequence[Claimant],
         return False
     hit = np.zeros(len(verts), dtype=bool)
     for other in others:
-        hit |= _occupancy(other.mesh_world)(verts)
+        hit |= other.inside(verts)
     return float(hit.mean()) >= min_fraction
 
 
@@ -72,25 +83,22 @@ def exclusion(own_points_world: np.ndarray, others: Sequence[Claimant]
     """``f(nodes (M, 3) world) -> (M,) bool``: nodes inside another claimant's mesh that
     belong to it: it is a prior, or its observed points are nearer than this object's."""
     own_tree = cKDTree(np.asarray(own_points_world, dtype=np.float64).reshape(-1, 3))
-    tests = [(_occupancy(o.mesh_world), o.is_prior,
-              cKDTree(o.points_world) if len(o.points_world) else None) for o in others]
 
     def excluded(nodes: np.ndarray) -> np.ndarray:
         pts = np.asarray(nodes, dtype=np.float64).reshape(-1, 3)
         out = np.zeros(len(pts), dtype=bool)
         own_d = None
-        for inside, is_prior, tree in tests:
-            hit = inside(pts) & ~out
+        for other in others:
+            hit = other.inside(pts) & ~out
             if not hit.any():
                 continue
-            if is_prior or tree is None:
+            if other.is_prior or not other.has_points:
                 out |= hit
                 continue
             if own_d is None:
                 own_d = own_tree.query(pts)[0]
             idx = np.flatnonzero(hit)
-            other_d = tree.query(pts[idx])[0]
-            out[idx[other_d < own_d[idx]]] = True
+            out[idx[other.distance_m(pts[idx]) < own_d[idx]]] = True
         return out
 
     return excluded

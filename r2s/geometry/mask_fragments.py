@@ -104,12 +104,24 @@ def boundary_evidence(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
         jump = np.maximum(jump_min_m, jump_fraction * np.minimum(za[valid], zb[valid]))
         continuous = float(np.mean(np.abs(za[valid] - zb[valid]) < jump)) if n_valid else 0.0
         small, large = (i, j) if sizes[i] <= sizes[j] else (j, i)
+        window = _pair_window(np.asarray(masks), i, j)
+        crop_masks, crop_rgb = np.asarray(masks)[window], np.asarray(rgb)[window]
         out.append(BoundaryEvidence(
             small_id=int(small), large_id=int(large), pairs=n_valid,
             continuous_fraction=continuous,
-            colour_distance=_colour_distance(np.asarray(masks), rgb, i, j, strip_px),
-            outline_fraction=_outline_fraction(np.asarray(masks), small, large)))
+            colour_distance=_colour_distance(crop_masks, crop_rgb, i, j, strip_px),
+            outline_fraction=_outline_fraction(crop_masks, small, large)))
     return out
+
+
+def _pair_window(masks: np.ndarray, i: int, j: int) -> tuple[slice, slice]:
+    """The bounding box of ids ``i`` and ``j`` grown by one pixel (clipped to the image):
+    every pixel of both lies in it, so distances to either and their outlines are the
+    same as on the whole image."""
+    rows, cols = np.nonzero((masks == i) | (masks == j))
+    h, w = masks.shape
+    return (slice(max(int(rows.min()) - 1, 0), min(int(rows.max()) + 2, h)),
+            slice(max(int(cols.min()) - 1, 0), min(int(cols.max()) + 2, w)))
 
 
 def _colour_distance(masks: np.ndarray, rgb: np.ndarray, i: int, j: int, strip_px: int,

@@ -127,7 +127,8 @@ def trilinear_sample(values: np.ndarray, origin_m: np.ndarray, voxel_size_m: flo
     return out + outside
 
 
-def _raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
+def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
+    """An Open3D ``RaycastingScene`` of one triangle mesh ((V, 3) vertices, (F, 3) faces)."""
     import open3d as o3d  # heavy import, only where needed
 
     scene = o3d.t.geometry.RaycastingScene()
@@ -260,7 +261,7 @@ def compute_sdf(mesh: trimesh.Trimesh, resolution: int = 128, padding_m: float |
     origin, voxel = grid_layout(bounds, resolution, padding_m)
     shape = (resolution,) * 3
 
-    scene = _raycasting_scene(vertices, faces)
+    scene = raycasting_scene(vertices, faces)
     seeds = _surface_seed_mask(mesh, origin, voxel, resolution, seed)
     dist_to_seed, nearest = ndimage.distance_transform_edt(~seeds, return_indices=True)
     band = dist_to_seed <= band_voxels
@@ -307,8 +308,8 @@ def compute_sdf(mesh: trimesh.Trimesh, resolution: int = 128, padding_m: float |
     rep_pos, rep_comp = _component_representatives(labels_far, 7)
     rep_pts = far_pts[rep_pos].astype(np.float64)
     if mesh.is_watertight:
-        inside_band = _occupancy(scene, band_pts)
-        rep_score = _occupancy(scene, rep_pts).astype(np.float64)
+        inside_band = occupancy(scene, band_pts)
+        rep_score = occupancy(scene, rep_pts).astype(np.float64)
         inside_far = _component_sign(labels_far, rep_comp, rep_score)
     else:
         normals = result["primitive_normals"].numpy().astype(np.float64)
@@ -331,7 +332,7 @@ def compute_sdf(mesh: trimesh.Trimesh, resolution: int = 128, padding_m: float |
     return SdfGrid(values_m=values.reshape(shape), origin_m=origin, voxel_size_m=voxel)
 
 
-def _occupancy(scene, points: np.ndarray) -> np.ndarray:
+def occupancy(scene, points: np.ndarray) -> np.ndarray:
     """Ray parity, majority of three rays (one ray may graze an edge and miscount)."""
     if len(points) == 0:
         return np.zeros(0, dtype=bool)

@@ -85,6 +85,21 @@ def _rollout_key(make_world: MakeWorld, params: Params, started: list[int], kind
         params, [list(getattr(make_world, "order", started))], 0.0)
 
 
+def _remembered_rollout(make_world: MakeWorld, params: Params, order: list[int], kind: str,
+                        simulate: Callable[..., dict], start: dict, *settings: float) -> dict:
+    """``simulate(world, start, *settings)`` in a fresh world of ``params`` (closed after),
+    remembered under its :func:`_rollout_key` (see :func:`_remembered`)."""
+    def rollout() -> dict:
+        world = make_world(params)
+        try:
+            return simulate(world, start, *settings)
+        finally:
+            world.close()
+
+    return _remembered(make_world, _rollout_key(make_world, params, order, kind, *settings),
+                       rollout)
+
+
 def depenetrate_scene(make_world: MakeWorld, params: Params, order: list[int],
                       log: dict) -> Params:
     """Separate the collision geometry (children move, parents stay) before anything else."""
@@ -231,17 +246,8 @@ def settle_round(make_world: MakeWorld, params: Params, order: list[int], rnd: i
     ``only`` the move of an object outside it, is refused (the object keeps its pose)."""
     params = dict(params)
     start = {i: params[i].world_from_object for i in order}
-
-    def rollout() -> dict:
-        world = make_world(params)
-        try:
-            return settle(world, start, settings.settle_duration_s, settings.settle_reset_steps)
-        finally:
-            world.close()
-
-    settled = _remembered(make_world, _rollout_key(make_world, params, order, "settle",
-                                                   settings.settle_duration_s,
-                                                   settings.settle_reset_steps), rollout)
+    settled = _remembered_rollout(make_world, params, order, "settle", settle, start,
+                                  settings.settle_duration_s, settings.settle_reset_steps)
     last = rnd == settings.max_rounds
     limit = settings.final_settle_shift_m if last else settings.max_settle_shift_m
     for i in order:
@@ -276,17 +282,8 @@ def damped_rest(make_world: MakeWorld, params: Params, order: list[int],
     held = {i: replace(params[i], movable=params[i].movable and i in still) for i in order} \
         if movers_only else params
     start = {i: params[i].world_from_object for i in order}
-
-    def rollout() -> dict:
-        world = make_world(held)
-        try:
-            return settle_damped(world, start, settings.rest_duration_s, settings.rest_damping)
-        finally:
-            world.close()
-
-    rest = _remembered(make_world, _rollout_key(make_world, held, order, "damped",
-                                                settings.rest_duration_s,
-                                                settings.rest_damping), rollout)
+    rest = _remembered_rollout(make_world, held, order, "damped", settle_damped, start,
+                               settings.rest_duration_s, settings.rest_damping)
     what = "damped rest (" + ("moving objects only" if movers_only else "whole scene") + ")"
     shifts = {i: float(np.linalg.norm(rest[i][:3, 3] - start[i][:3, 3])) for i in order}
     worst = max(shifts, key=shifts.get)

@@ -300,23 +300,22 @@ def _fallback_to_completion(scene: InputScene, observed: dict, shapes: dict[int,
     for i, iou in sorted(ious.items()):
         if iou >= o.prior_fallback_iou:
             continue
-        pts, pix = observed[i]
-        others = [observed[j][0] for j in observed if j != i]
-        mesh, world_from_object = _complete(scene, specs[i], pts, pix,
-                                            np.concatenate(others) if others else None,
-                                            plane, o)
+        mesh, world_from_object = _complete(scene, specs[i], observed, plane, o)
         shapes[i] = (mesh, world_from_object, None)
         flags.append(f"object {i}: its prior does not fit what the camera saw (silhouette "
                      f"IoU {iou:.2f} < {o.prior_fallback_iou:.2f}); completed from the "
                      "observation instead")
 
 
-def _complete(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, pix: np.ndarray,
-              others: Optional[np.ndarray], plane: PlaneFit, o: Options,
-              exclude: Optional[Callable[[np.ndarray], np.ndarray]] = None
+def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneFit,
+              o: Options, exclude: Optional[Callable[[np.ndarray], np.ndarray]] = None
               ) -> tuple[trimesh.Trimesh, np.ndarray]:
-    """A closed, coloured mesh completed from the observation (object frame) and its pose;
-    ``others`` are the other objects' points (what the object may stand on)."""
+    """A closed, coloured mesh completed from the observation (object frame) and its pose.
+    ``observed``: id -> (points, pixels) of every object; the others' points are what the
+    object may stand on."""
+    pts, pix = observed[spec.id]
+    rest = [observed[j][0] for j in observed if j != spec.id]
+    others = np.concatenate(rest) if rest else None
     cam = scene.camera
     depth = scene.depth_m[pix[:, 0], pix[:, 1]]
     pixel_m = float(np.median(depth)) / float(cam.K[0, 0])
@@ -377,22 +376,20 @@ def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple
     for obj_id, (mesh, world_from_object, _) in shapes.items():
         m = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
         posed[obj_id] = m.apply_transform(world_from_object)
+    claimant = {j: Claimant(posed[j], observed[j][0], shapes[j][2] is not None)
+                for j in shapes}
     redo = {}
     for spec in scene.objects:
         if shapes[spec.id][2] is not None:
             continue  # a registered prior keeps its shape
-        claimants = [Claimant(posed[j], observed[j][0], shapes[j][2] is not None)
-                     for j in shapes if j != spec.id]
+        claimants = [claimant[j] for j in shapes if j != spec.id]
         if claimants and overlaps(posed[spec.id], claimants):
             redo[spec.id] = exclusion(observed[spec.id][0], claimants)
     for spec in scene.objects:
         if spec.id not in redo:
             continue
-        pts, pix = observed[spec.id]
-        others = [observed[j][0] for j in observed if j != spec.id]
-        mesh, world_from_object = _complete(
-            scene, spec, pts, pix, np.concatenate(others) if others else None, plane, o,
-            exclude=redo[spec.id])
+        mesh, world_from_object = _complete(scene, spec, observed, plane, o,
+                                            exclude=redo[spec.id])
         shapes[spec.id] = (mesh, world_from_object, None)
 
 
@@ -422,15 +419,12 @@ def _register_or_complete(scene: InputScene, observed: dict, plane: PlaneFit, o:
     shapes: dict[int, tuple] = {}
     for k, spec in enumerate(scene.objects):
         progress(f"object {spec.id}", 0.8 * k / max(n, 1))
-        pts, pix = observed[spec.id]
         if spec.prior_mesh is not None:
-            prior, pose, reg = _register(scene, spec, pts, plane, o, flags)
+            prior, pose, reg = _register(scene, spec, observed[spec.id][0], plane, o, flags)
             priors[spec.id] = (prior, pose)
             shapes[spec.id] = (None, None, reg)
         else:
-            others = [observed[j][0] for j in observed if j != spec.id]
-            mesh, world_from_object = _complete(
-                scene, spec, pts, pix, np.concatenate(others) if others else None, plane, o)
+            mesh, world_from_object = _complete(scene, spec, observed, plane, o)
             shapes[spec.id] = (mesh, world_from_object, None)
     return priors, shapes
 
