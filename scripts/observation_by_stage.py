@@ -7,7 +7,7 @@ violation and mean UCD against the input view (r2s/metrics/observation.py), plus
 stability, IoU, free space and UCD of export/ as evaluate/metrics.json reports them.
 
 Usage:
-  python scripts/observation_by_stage.py SCENE [SCENE ...]
+  python scripts/observation_by_stage.py SCENE [SCENE ...] [--objects]
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def _fmt(v: object, digits: int = 3) -> str:
     return "-" if v is None else f"{v:.{digits}f}"
 
 
-def scene_rows(root: Path) -> list[list[str]]:
+def scene_rows(root: Path, per_object: bool = False) -> list[list[str]]:
     paths = ScenePaths(root)
     model = load_manifest(paths.manifest).model
     view = corrected_input(load_input(root), model)
@@ -46,11 +46,16 @@ def scene_rows(root: Path) -> list[list[str]]:
         state = corrected_state(read_state(paths.stage_dir(stage)), model)
         meshes = [load_mesh(paths.stage_dir(stage) / o.mesh).apply_transform(o.pose)
                   for o in state.objects]
-        s = observe_scene(meshes, [o.id for o in state.objects], view.camera.K,
-                          view.camera.world_from_camera, view.depth_m, view.masks).summary()
+        seen = observe_scene(meshes, [o.id for o in state.objects], view.camera.K,
+                             view.camera.world_from_camera, view.depth_m, view.masks)
+        s = seen.summary()
         rows.append([root.name, stage, "", _fmt(s["silhouette_iou"]),
                      _fmt(s["min_silhouette_iou"]), _fmt(s["free_space_violation"]),
                      _fmt(s["ucd_mm"], 2)])
+        if per_object:
+            source = {o.id: o.source for o in state.objects}
+            rows[-1].append(" ".join(f"{ob.id}({source[ob.id][0]}):{_fmt(ob.iou, 2)}"
+                                     for ob in seen.objects))
     metrics = paths.stage_dir("evaluate") / "metrics.json"
     if metrics.is_file():
         m = json.loads(metrics.read_text())
@@ -63,12 +68,18 @@ def scene_rows(root: Path) -> list[list[str]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scenes", nargs="+", type=Path)
+    parser.add_argument("--objects", action="store_true",
+                        help="add each object's IoU per stage (id(p = prior, c = completed))")
     args = parser.parse_args()
     header = ["scene", "stage", "stable", "IoU", "min IoU", "free space", "UCD mm"]
+    if args.objects:
+        header.append("IoU per object")
     print("| " + " | ".join(header) + " |")
     print("|" + "---|" * len(header))
     for root in args.scenes:
-        for row in scene_rows(root):
+        for row in scene_rows(root, args.objects):
+            if args.objects and len(row) < len(header):
+                row = row + [""]
             print("| " + " | ".join(row) + " |")
 
 
