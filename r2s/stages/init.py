@@ -8,15 +8,21 @@ observation (height field over the support plane). With ``fit_view`` (off by def
 registered priors are then fitted to their view (pose and a bounded scale per axis against the silhouette, the
 depth, the free space and the support plane they rest on; priors reaching into other
 objects refitted with them as obstacles; geometry/prior_silhouette.py), and a prior that
-still does not match its mask is replaced by the completion. No dynamics here: settling
-and stability are left for the later stages.
+still does not match its mask is replaced by the completion. Then, per object still
+holding a prior (``prior_choice``, 'auto' by default), the object is also completed from
+the observation, both are scored against the view (silhouette IoU with the others
+z-buffered, UCD, free space; geometry/prior_choice.py) and the completion replaces the
+prior only where it is better on all three by calibrated margins (a warning line says so).
+No dynamics here: settling and stability are left for the later stages.
 
 Object frames: a registered prior keeps its own axes, with the origin moved to the centre
 of its bounding box and the estimated scale (per axis with ``fit_view``) applied to the
 mesh (``world_from_object`` is rigid); a completed object has the support plane's axes and its origin at the centre of
 its footprint, on its base. Extra keys per object in ``state.json``: ``icp_fitness``,
 ``icp_rmse_m`` (for completed objects: of the observed points against the completed
-surface), ``scale``, ``observed_points``, ``num_observed_points``.
+surface), ``scale``, ``observed_points``, ``num_observed_points``; for an object given a
+prior, ``prior_choice``: ``chosen`` ("prior" or "completion") and the ``prior``'s and the
+``completion``'s scores (``iou``, ``ucd_mm``, ``free_space``).
 
 Writes ``init/``: ``state.json``, ``meshes/<id>.glb`` (object frame, coloured),
 ``points/<id>.npy`` (the object's observed points, world frame, float32 (N, 3)),
@@ -28,7 +34,7 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
-from typing import Callable, Optional
+from typing import Callable, Literal, Optional
 
 import numpy as np
 import trimesh
@@ -47,6 +53,7 @@ from r2s.geometry.free_space import view_constraint
 from r2s.geometry.mask_edges import foreign_rim_pixels
 from r2s.geometry.point_cleanup import object_point_mask
 from r2s.geometry.overlay import fit_overlay, render_instances
+from r2s.geometry.prior_choice import ChoiceMargins, choose, score_in_view
 from r2s.geometry.prior_refine import RefinedPose, RefineOptions, refine_axis_scale
 from r2s.geometry.prior_silhouette import SilhouetteFitOptions, fit_priors_to_view
 from r2s.geometry.plane import PlaneFit, fit_plane_ransac, signed_distance
@@ -133,6 +140,20 @@ class Options(StageOptions):
                                       "whose fitted silhouette IoU against its own mask "
                                       "stays below this is replaced by the completion "
                                       "from the observation (flagged).")
+    prior_choice: Literal["auto", "prior", "completion"] = Field(
+        "auto", description="Per object with a prior: 'auto' also completes it from the "
+        "observation, scores both against the view (silhouette IoU with the others "
+        "z-buffered, UCD, free space) and keeps the completion only where it is better on "
+        "all three by the margins below (geometry/prior_choice.py); 'prior' always keeps "
+        "the prior, 'completion' always completes (both scored and recorded).")
+    prior_choice_iou_gain: float = Field(0.1, ge=0, le=1, description="'auto': the "
+                                         "completion's silhouette IoU must exceed the "
+                                         "prior's by at least this.")
+    prior_choice_ucd_gain_mm: float = Field(1.0, ge=0, description="'auto': ... and its UCD "
+                                            "must be lower by at least this, mm.")
+    prior_choice_free_space_slack: float = Field(0.02, ge=0, description="'auto': ... and "
+                                                 "its free-space violation may exceed the "
+                                                 "prior's by at most this.")
     completion_cell_m: float = Field(0.003, gt=0, description="Grid cell of the height-field "
                                      "completion of objects without a prior.")
     completion_hull_margin_px: float = Field(0.25, ge=0, description="Grow a completed "
@@ -307,6 +328,47 @@ def _fallback_to_completion(scene: InputScene, observed: dict, shapes: dict[int,
                      "observation instead")
 
 
+def _posed(mesh: trimesh.Trimesh, world_from_object: np.ndarray) -> trimesh.Trimesh:
+    return trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).apply_transform(
+        world_from_object)
+
+
+def _choose_prior_or_completion(scene: InputScene, observed: dict, shapes: dict[int, tuple],
+                                plane: PlaneFit, o: Options, flags: list[str]
+                                ) -> dict[int, dict]:
+    """Per object still holding a registered prior: complete it from the observation too,
+    score both against the view with every other object as it stands (so the choice does
+    not depend on the order of the objects) and, by ``o.prior_choice``, keep one (in
+    ``shapes``; geometry/prior_choice.py). Returns id -> {chosen, prior, completion} (the
+    scores), for the state's extra keys."""
+    cam = scene.camera
+    specs = {spec.id: spec for spec in scene.objects}
+    posed = {i: _posed(mesh, pose) for i, (mesh, pose, _) in shapes.items()}
+    margins = ChoiceMargins(iou_gain=o.prior_choice_iou_gain,
+                            ucd_gain_mm=o.prior_choice_ucd_gain_mm,
+                            free_space_slack=o.prior_choice_free_space_slack)
+    records: dict[int, dict] = {}
+    completions: dict[int, tuple] = {}
+    for i in sorted(i for i, shape in shapes.items() if shape[2] is not None):
+        others = [(j, m) for j, m in posed.items() if j != i]
+        completions[i] = _complete(scene, specs[i], observed, plane, o)
+        scores = [score_in_view(candidate, i, others, observed[i][0], cam.K,
+                                cam.world_from_camera, scene.depth_m, scene.masks)
+                  for candidate in (posed[i], _posed(*completions[i]))]
+        chosen, numbers = choose(scores[0], scores[1], margins)
+        if o.prior_choice != "auto":
+            chosen = o.prior_choice
+        records[i] = {"chosen": chosen, "prior": scores[0].as_dict(),
+                      "completion": scores[1].as_dict()}
+        if chosen == "completion":
+            flags.append(f"object {i}: its prior was replaced by the completion from the "
+                         f"observation ({numbers})")
+    for i, record in records.items():
+        if record["chosen"] == "completion":
+            shapes[i] = (*completions[i], None)
+    return records
+
+
 def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneFit,
               o: Options, exclude: Optional[Callable[[np.ndarray], np.ndarray]] = None
               ) -> tuple[trimesh.Trimesh, np.ndarray]:
@@ -339,11 +401,11 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
 
 
 def _save_object(spec: ObjectSpec, shape: tuple, pts: np.ndarray, out: Path, o: Options,
-                 table_extent_m: float
+                 table_extent_m: float, extra: Optional[dict] = None
                  ) -> tuple[ObjectState, trimesh.Trimesh, float, list[str]]:
     """Write one object's mesh and points; its state entry, world-frame mesh, fit RMSE
     and warning lines. ``shape`` = (mesh (object frame), world_from_object, registration
-    or None for a completed object)."""
+    or None for a completed object); ``extra``: more keys of its state entry."""
     mesh, world_from_object, reg = shape
     if reg is not None:
         source, fitness, rmse, scale = "prior", reg.fitness, reg.rmse_m, reg.scale
@@ -362,7 +424,8 @@ def _save_object(spec: ObjectSpec, shape: tuple, pts: np.ndarray, out: Path, o: 
         world_from_object=world_from_object.tolist(), source=source,
         icp_fitness=round(float(fitness), 6),
         icp_rmse_m=float(rmse) if np.isfinite(rmse) else None, scale=float(scale),
-        observed_points=f"points/{spec.id}.npy", num_observed_points=int(len(pts)))
+        observed_points=f"points/{spec.id}.npy", num_observed_points=int(len(pts)),
+        **(extra or {}))
     return state, mesh_w, float(rmse), flags
 
 
@@ -454,6 +517,8 @@ def run(ctx: StageContext) -> dict:
     ctx.progress("fit priors to the view", 0.8)
     ious = _fit_priors(scene, priors, shapes, plane, o)
     _fallback_to_completion(scene, observed, shapes, ious, plane, o, flags)
+    ctx.progress("prior or completion", 0.85)
+    choices = _choose_prior_or_completion(scene, observed, shapes, plane, o, flags)
     if o.completion_partition_hidden:
         ctx.progress("hidden space shared by completed objects", 0.9)
         _partition_hidden(scene, observed, shapes, plane, o)
@@ -462,7 +527,9 @@ def run(ctx: StageContext) -> dict:
     rmses: list[float] = []
     for spec in scene.objects:
         state, mesh_w, rmse, more = _save_object(spec, shapes[spec.id], observed[spec.id][0],
-                                                 out, o, table_extent_m)
+                                                 out, o, table_extent_m,
+                                                 {"prior_choice": choices[spec.id]}
+                                                 if spec.id in choices else None)
         objects.append(state)
         posed.append(mesh_w)
         flags += more
@@ -488,6 +555,7 @@ def run(ctx: StageContext) -> dict:
     return {
         "objects": len(scene.objects),
         "completed": sum(1 for ob in objects if ob.source == "completed"),
+        "prior_choice": {str(i): c["chosen"] for i, c in sorted(choices.items())},
         "mean_icp_rmse_mm": round(1000 * float(np.mean(finite)), 3) if finite else None,
         "min_fitness": round(min(fitnesses), 4) if fitnesses else None,
         "support_inlier_fraction": round(float(plane.inliers.mean()), 4),

@@ -1,0 +1,103 @@
+"""Prior or completion? A per-object choice made from the observation alone.
+
+A registered prior with single-image errors (proportions off, smoothed, a pose off by a
+local minimum) can look less like what the camera saw than a completion built from the
+observation itself. :func:`score_in_view` measures one candidate shape of an object
+against the view with the same measures as ``evaluate`` (:mod:`r2s.metrics.observation`):
+
+* **silhouette IoU** of the candidate against its own mask, rendered z-buffered with the
+  other objects (so a part hidden behind a neighbour in the reconstruction is hidden as in
+  the image);
+* **UCD**: mean distance (mm) from the object's observed points to the candidate's surface;
+* **free-space violation**: pixels away from the object's mask where the candidate lies in
+  front of depth the camera saw, divided by the mask's area.
+
+:func:`choose` keeps the prior unless the completion is better on all three by a margin
+(:class:`ChoiceMargins`, calibrated in docs/realistic.md): a prior carries the hidden side
+that a completion can only guess, so it is replaced only where the view clearly disagrees
+with it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Sequence
+
+import numpy as np
+import trimesh
+
+from r2s.metrics.observation import (free_space_map, render_objects, silhouette_iou,
+                                     unilateral_chamfer_m)
+
+
+@dataclass(frozen=True)
+class ViewScore:
+    """How one candidate shape of an object agrees with the view.
+
+    iou : silhouette IoU against the object's mask (others z-buffered), in [0, 1].
+    ucd_mm : mean distance of the object's observed points to the shape, mm.
+    free_space : free-space violation pixels / mask pixels (>= 0).
+    """
+
+    iou: float
+    ucd_mm: float
+    free_space: float
+
+    def as_dict(self) -> dict:
+        return {k: round(float(v), 4) for k, v in asdict(self).items()}
+
+
+@dataclass(frozen=True)
+class ChoiceMargins:
+    """How much better the completion must be before it replaces a prior.
+
+    iou_gain : the completion's IoU must exceed the prior's by at least this;
+    ucd_gain_mm : its UCD must be lower by at least this (mm);
+    free_space_slack : its free-space violation may exceed the prior's by at most this.
+    """
+
+    iou_gain: float = 0.1
+    ucd_gain_mm: float = 1.0
+    free_space_slack: float = 0.02
+
+
+def score_in_view(candidate_world: trimesh.Trimesh, obj_id: int,
+                  others_world: Sequence[tuple[int, trimesh.Trimesh]],
+                  points_world: np.ndarray, K: np.ndarray, world_from_camera: np.ndarray,
+                  depth_m: np.ndarray, masks: np.ndarray) -> ViewScore:
+    """Score one candidate (world-frame mesh) of object ``obj_id`` against the view.
+
+    Parameters
+    ----------
+    others_world : (id, world-frame mesh) of every other object, rendered with it.
+    points_world : (N, 3) the object's observed points (world frame).
+    K : (3, 3); world_from_camera : (4, 4) OpenCV camera.
+    depth_m : (H, W) observed depth, NaN = no reading; masks : (H, W) int ids, 0 = none.
+    """
+    height, width = masks.shape
+    meshes = [m for _, m in others_world] + [candidate_world]
+    ids = [int(i) for i, _ in others_world] + [int(obj_id)]
+    rendered = render_objects(meshes, ids, K, world_from_camera, width, height)
+    per_iou, _ = silhouette_iou(rendered.ids, masks, [obj_id])
+    mask_px = int(np.count_nonzero(masks == obj_id))
+    violation = free_space_map(rendered, depth_m, masks, obj_id)
+    ucd_m = unilateral_chamfer_m(points_world, candidate_world)
+    return ViewScore(iou=float(per_iou[int(obj_id)] or 0.0),
+                     ucd_mm=float("inf") if ucd_m is None else 1000.0 * ucd_m,
+                     free_space=float(violation.sum()) / mask_px if mask_px else 0.0)
+
+
+def choose(prior: ViewScore, completion: ViewScore,
+           margins: ChoiceMargins = ChoiceMargins()) -> tuple[str, str]:
+    """``("prior" | "completion", reason)``: the completion only where it is better than
+    the prior on IoU, UCD and free space by ``margins``."""
+    iou_gain = completion.iou - prior.iou
+    ucd_gain = prior.ucd_mm - completion.ucd_mm
+    fs_loss = completion.free_space - prior.free_space
+    numbers = (f"silhouette IoU {prior.iou:.2f} -> {completion.iou:.2f}, UCD "
+               f"{prior.ucd_mm:.1f} -> {completion.ucd_mm:.1f} mm, free space "
+               f"{prior.free_space:.3f} -> {completion.free_space:.3f}")
+    if (iou_gain >= margins.iou_gain and ucd_gain >= margins.ucd_gain_mm
+            and fs_loss <= margins.free_space_slack):
+        return "completion", numbers
+    return "prior", numbers

@@ -1,0 +1,83 @@
+#!/usr/bin/env python
+"""Prior or completion, per object: the view scores init records and the CD against gt.
+
+For each scene (a copy: init/ is rewritten), runs ``r2s init SCENE --set
+prior_choice=prior`` and ``--set prior_choice=completion`` through the command line and
+prints, per object with a prior, the scores init recorded for both candidates (silhouette
+IoU with the others z-buffered, UCD mm, free-space violation; r2s/geometry/prior_choice.py),
+the Chamfer distance (mm) of each candidate's init mesh against the gt object of the same
+id, and what ``prior_choice=auto`` would choose with the default margins (or those given).
+gt/ is read here only, to calibrate the margins; init never reads it.
+
+Usage:
+  python scripts/prior_choice_table.py SCENE [SCENE ...] [--iou-gain G] [--ucd-gain-mm U]
+      [--free-space-slack F]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from r2s.geometry.prior_choice import ChoiceMargins, ViewScore, choose  # noqa: E402
+from r2s.io.mesh_io import load_mesh  # noqa: E402
+from r2s.io.paths import ScenePaths  # noqa: E402
+from r2s.io.scene_json import read_gt_scene  # noqa: E402
+from r2s.io.state import read_state  # noqa: E402
+from r2s.metrics.geometry import chamfer_distance_mm, posed  # noqa: E402
+
+
+def _init(root: Path, mode: str) -> dict[int, tuple[float, dict]]:
+    """Run init with ``prior_choice=mode``; id -> (CD mm against gt, recorded scores)."""
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    subprocess.run([sys.executable, "-m", "r2s.cli", "init", str(root), "--set",
+                    f"prior_choice={mode}"], check=True, env=env, capture_output=True)
+    paths = ScenePaths(root)
+    gt = {g.id: g for g in read_gt_scene(paths.gt_scene).objects}
+    out = {}
+    for o in read_state(paths.stage_dir("init")).objects:
+        record = getattr(o, "prior_choice", None)
+        if record is None or o.id not in gt:
+            continue
+        mesh = posed(load_mesh(paths.stage_dir("init") / o.mesh), np.asarray(o.pose))
+        truth = posed(load_mesh(paths.gt / gt[o.id].mesh),
+                      np.asarray(gt[o.id].world_from_object))
+        out[o.id] = (chamfer_distance_mm(mesh, truth, seed=0), record)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("scenes", nargs="+", type=Path)
+    parser.add_argument("--iou-gain", type=float, default=ChoiceMargins.iou_gain)
+    parser.add_argument("--ucd-gain-mm", type=float, default=ChoiceMargins.ucd_gain_mm)
+    parser.add_argument("--free-space-slack", type=float, default=ChoiceMargins.free_space_slack)
+    args = parser.parse_args()
+    margins = ChoiceMargins(args.iou_gain, args.ucd_gain_mm, args.free_space_slack)
+    print("| scene | id | prior IoU / UCD / free | completion IoU / UCD / free "
+          "| CD prior [mm] | CD completion [mm] | auto chooses | better against gt |")
+    print("|---|---:|---|---|---:|---:|---|---|")
+    for root in args.scenes:
+        with_prior = _init(root, "prior")
+        completed = _init(root, "completion")
+        for i in sorted(with_prior):
+            cd_p, rec = with_prior[i]
+            cd_c = completed[i][0] if i in completed else float("nan")
+            p, c = ViewScore(**rec["prior"]), ViewScore(**rec["completion"])
+            chosen, _ = choose(p, c, margins)
+            best = "completion" if cd_c < cd_p else "prior"
+            print(f"| {root.name} | {i} | {p.iou:.2f} / {p.ucd_mm:.1f} / {p.free_space:.3f} "
+                  f"| {c.iou:.2f} / {c.ucd_mm:.1f} / {c.free_space:.3f} | {cd_p:.1f} "
+                  f"| {cd_c:.1f} | {chosen} | {best} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,94 @@
+"""Prior or completion (r2s/geometry/prior_choice.py and init's ``prior_choice``): known
+answers from ray-cast views of boxes on a table at z = 0."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from helpers_init import SynthObject, default_camera, pose, render_view, write_input_scene
+from r2s.geometry.camera import backproject
+from r2s.geometry.prior_choice import ChoiceMargins, ViewScore, choose, score_in_view
+
+WIDTH, HEIGHT = 320, 240
+
+
+def _view():
+    """A camera 40 deg above the table, 0.5 m away."""
+    elevation = np.radians(40.0)
+    eye = 0.5 * np.array([np.cos(elevation) * 0.8, -np.cos(elevation) * 0.6, np.sin(elevation)])
+    return default_camera(WIDTH, HEIGHT, eye=tuple(eye), target=(0.0, 0.0, 0.03))
+
+
+def _scene() -> list[SynthObject]:
+    """A 12 x 6 x 4 cm box whose prior is 1.6 x too long (its x axis), and a 5 cm cube
+    given its own shape, at poses 1 cm and 5 deg off."""
+    box = trimesh.creation.box((0.12, 0.06, 0.04))
+    long_box = trimesh.creation.box((0.192, 0.06, 0.04))
+    cube = trimesh.creation.box((0.05, 0.05, 0.05))
+    turn = trimesh.transformations.rotation_matrix(np.radians(5.0), [0, 0, 1])
+    return [SynthObject(1, box, pose([0.05, 0.05, 0.02]), label="box", prior=long_box,
+                        world_from_prior=pose([0.06, 0.05, 0.02]) @ turn),
+            SynthObject(2, cube, pose([-0.07, -0.06, 0.025]), (60, 60, 200), label="cube",
+                        prior=cube, world_from_prior=pose([-0.06, -0.06, 0.025]) @ turn)]
+
+
+def _posed(obj: SynthObject, mesh: trimesh.Trimesh, world_from: np.ndarray) -> trimesh.Trimesh:
+    return mesh.copy().apply_transform(world_from)
+
+
+def test_scores_of_the_true_shape_and_of_a_box_too_long():
+    objects = _scene()
+    K, world_from_camera = _view()
+    _, depth, masks = render_view(objects, K, world_from_camera, WIDTH, HEIGHT)
+    box, cube = objects
+    pts = backproject(depth, K, world_from_camera, masks == 1)
+    others = [(2, _posed(cube, cube.mesh, cube.world_from_object))]
+    truth = score_in_view(_posed(box, box.mesh, box.world_from_object), 1, others, pts, K,
+                          world_from_camera, depth, masks)
+    # the true shape at the true pose: only pixel-centre sampling differs
+    assert truth.iou > 0.97 and truth.ucd_mm < 0.1 and truth.free_space == 0.0
+    # the 1.6 x long prior centred on the truth: 3.6 cm of box past each end, in front of
+    # table the camera saw (its silhouette about 1.4 x the mask's)
+    long_box = score_in_view(_posed(box, box.prior, box.world_from_object), 1, others, pts, K,
+                             world_from_camera, depth, masks)
+    assert 0.55 < long_box.iou < 0.8
+    assert long_box.free_space > 0.2
+    # the observed end face lies inside the long prior, at most 2 cm from its top and sides
+    assert 0.5 < long_box.ucd_mm < 3.0
+
+
+def test_choose_needs_every_margin():
+    prior = ViewScore(iou=0.70, ucd_mm=5.0, free_space=0.05)
+    margins = ChoiceMargins(iou_gain=0.1, ucd_gain_mm=1.0, free_space_slack=0.02)
+    assert choose(prior, ViewScore(0.85, 2.0, 0.01), margins)[0] == "completion"
+    assert choose(prior, ViewScore(0.79, 2.0, 0.01), margins)[0] == "prior"  # IoU gain 0.09
+    assert choose(prior, ViewScore(0.85, 4.5, 0.01), margins)[0] == "prior"  # UCD gain 0.5
+    assert choose(prior, ViewScore(0.85, 2.0, 0.08), margins)[0] == "prior"  # free +0.03
+    assert choose(prior, ViewScore(0.85, 2.0, 0.065), margins)[0] == "completion"
+
+
+@pytest.mark.slow
+def test_init_completes_a_prior_too_long_and_keeps_an_exact_one(tmp_path):
+    from r2s.io.paths import ScenePaths
+    from r2s.io.state import read_state
+    from r2s.runner.base import run_stage
+    from r2s.stages.init import STAGE, Options
+
+    K, world_from_camera = _view()
+    scene = write_input_scene(tmp_path / "scene", _scene(), WIDTH, HEIGHT, K=K,
+                              world_from_camera=world_from_camera)
+    result = run_stage(STAGE, scene, Options(icp_yaw_hypotheses=1))
+    state = {o.id: o for o in read_state(ScenePaths(scene).stage_dir("init")).objects}
+    assert {i: o.source for i, o in state.items()} == {1: "completed", 2: "prior"}
+    box, cube = state[1].prior_choice, state[2].prior_choice
+    assert box["chosen"] == "completion" and cube["chosen"] == "prior"
+    # the completion of a box seen on three sides fits the view; the long prior cannot
+    # (its scale is bounded to 0.85-1.15)
+    assert box["completion"]["iou"] > 0.9 and box["prior"]["iou"] < 0.8
+    assert cube["prior"]["iou"] > 0.95 and cube["prior"]["ucd_mm"] < 0.5
+    assert result.summary["prior_choice"] == {"1": "completion", "2": "prior"}
+    assert any(f.startswith("object 1: its prior was replaced by the completion")
+               for f in result.summary["flags"])
+    assert not any(f.startswith("object 2: its prior") for f in result.summary["flags"])
+    forced = run_stage(STAGE, scene, Options(icp_yaw_hypotheses=1, prior_choice="prior"))
+    assert forced.summary["completed"] == 0
