@@ -146,7 +146,7 @@ class Options(StageOptions):
         "z-buffered, UCD, free space) and keeps the completion only where it is better on "
         "all three by the margins below (geometry/prior_choice.py); 'prior' always keeps "
         "the prior, 'completion' always completes (both scored and recorded).")
-    prior_choice_iou_gain: float = Field(0.1, ge=0, le=1, description="'auto': the "
+    prior_choice_iou_gain: float = Field(0.05, ge=0, le=1, description="'auto': the "
                                          "completion's silhouette IoU must exceed the "
                                          "prior's by at least this.")
     prior_choice_ucd_gain_mm: float = Field(1.0, ge=0, description="'auto': ... and its UCD "
