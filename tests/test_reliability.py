@@ -333,10 +333,10 @@ def test_stale_scratch_folders_are_removed_at_start(tmp_path: Path):
 # ---- sanity checks -------------------------------------------------------------------------
 
 
-def _init(scene: Path):
+def _init(scene: Path, options: dict | None = None):
     from r2s.runner.pipeline import run_single_stage
 
-    return run_single_stage(scene, "init", {})
+    return run_single_stage(scene, "init", options or {})
 
 
 def test_millimetre_prior_is_refused(tmp_path: Path):
@@ -362,6 +362,11 @@ def test_metre_prior_passes_and_a_5x_prior_is_flagged(tmp_path: Path):
     add_prior(scene, trimesh.creation.box(box1_size_m() * 5))
     flags = _init(scene).summary["flags"]
     assert any(f.startswith("object 1: prior is 5.") and "observed size" in f for f in flags)
+    # by default the completion from the observation replaces a prior that does not fit
+    assert any(f.startswith("object 1: its prior was replaced by the completion") for f in flags)
+    assert not any(f.startswith("object 1: fit explains") for f in flags)
+    shutil.rmtree(scene / "init")
+    flags = _init(scene, {"prior_choice": "prior"}).summary["flags"]  # kept: flagged
     assert any(f.startswith("object 1: fit explains") for f in flags)
 
 
