@@ -7,7 +7,9 @@ prints, per object with a prior, the scores init recorded for both candidates (s
 IoU with the others z-buffered, UCD mm, free-space violation; r2s/geometry/prior_choice.py),
 the Chamfer distance (mm) of each candidate's init mesh against the gt object of the same
 id, and what ``prior_choice=auto`` would choose with the default margins (or those given).
-gt/ is read here only, to calibrate the margins; init never reads it.
+gt/ is read here only, to calibrate the margins; init never reads it. The copy's manifest
+is left recording ``prior_choice=completion``, which a later ``r2s run`` reuses: run it with
+``--set init.prior_choice=auto`` to go back to the default.
 
 Usage:
   python scripts/prior_choice_table.py SCENE [SCENE ...] [--iou-gain G] [--ucd-gain-mm U]

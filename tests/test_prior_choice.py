@@ -32,7 +32,7 @@ def _scene() -> list[SynthObject]:
                         prior=cube, world_from_prior=pose([-0.06, -0.06, 0.025]) @ turn)]
 
 
-def _posed(obj: SynthObject, mesh: trimesh.Trimesh, world_from: np.ndarray) -> trimesh.Trimesh:
+def _posed(mesh: trimesh.Trimesh, world_from: np.ndarray) -> trimesh.Trimesh:
     return mesh.copy().apply_transform(world_from)
 
 
@@ -42,14 +42,14 @@ def test_scores_of_the_true_shape_and_of_a_box_too_long():
     _, depth, masks = render_view(objects, K, world_from_camera, WIDTH, HEIGHT)
     box, cube = objects
     pts = backproject(depth, K, world_from_camera, masks == 1)
-    others = [(2, _posed(cube, cube.mesh, cube.world_from_object))]
-    truth = score_in_view(_posed(box, box.mesh, box.world_from_object), 1, others, pts, K,
+    others = [(2, _posed(cube.mesh, cube.world_from_object))]
+    truth = score_in_view(_posed(box.mesh, box.world_from_object), 1, others, pts, K,
                           world_from_camera, depth, masks)
     # the true shape at the true pose: only pixel-centre sampling differs
     assert truth.iou > 0.97 and truth.ucd_mm < 0.1 and truth.free_space == 0.0
     # the 1.6 x long prior centred on the truth: 3.6 cm of box past each end, in front of
     # table the camera saw (its silhouette about 1.4 x the mask's)
-    long_box = score_in_view(_posed(box, box.prior, box.world_from_object), 1, others, pts, K,
+    long_box = score_in_view(_posed(box.prior, box.world_from_object), 1, others, pts, K,
                              world_from_camera, depth, masks)
     assert 0.55 < long_box.iou < 0.8
     assert long_box.free_space > 0.2
