@@ -70,9 +70,11 @@ def corrected_input(input_scene: InputScene, model: Mapping[str, Any] | None,
 
 def merged_fragments(scene: InputScene) -> InputScene:
     """``scene`` with every fragment id's mask pixels given to the object it is part of
-    and its :class:`ObjectSpec` dropped (ids with a shape prior are never fragments)."""
+    and its :class:`ObjectSpec` dropped (ids with a shape prior are never fragments; a
+    declared id is kept over an undeclared one)."""
     protected = [o.id for o in scene.objects if o.prior_mesh is not None]
-    parents = fragment_parents(scene.masks, scene.depth_m, scene.rgb, protected)
+    declared = [o.id for o in scene.objects if o.declared]
+    parents = fragment_parents(scene.masks, scene.depth_m, scene.rgb, protected, declared)
     parents = {f: p for f, p in parents.items()
                if f in scene.ids and p[0] in scene.ids}
     if not parents:

@@ -5,7 +5,8 @@ whose segmenter errors are recorded in ``gt/scene.json["realism"]["masks"]``.
 For every extra id (a split piece or a sliver; ``extra_ids``: new id -> its object) it
 says whom the merge joined it with: its object (whichever of the two ids is kept), only
 another piece of the same object, another object (wrong), or nothing (missed); and it
-counts merges of two different objects' ids. Ids with a prior are protected, as in ``scene_model.corrected_input``.
+counts merges of two different objects' ids, and how often a joined piece is reconstructed
+under its object's own (declared) id. Ids with a prior are protected, as in ``scene_model.corrected_input``.
 
 Usage:
   for s in $(seq 10 21); do r2s synth scenes/s$s --seed $s --count 6 \\
@@ -33,7 +34,8 @@ def check(scene: Path) -> dict[str, int]:
     extra = {int(k): int(v) for k, v in
              gt.get("realism", {}).get("masks", {}).get("extra_ids", {}).items()}
     protected = [o.id for o in view.objects if o.prior_mesh is not None]
-    parents = fragment_parents(view.masks, view.depth_m, view.rgb, protected)
+    declared = [o.id for o in view.objects if o.declared]
+    parents = fragment_parents(view.masks, view.depth_m, view.rgb, protected, declared)
 
     def owner(i: int) -> int:
         return extra.get(i, i)  # the gt object an id belongs to
@@ -42,7 +44,8 @@ def check(scene: Path) -> dict[str, int]:
         return parents[i][0] if i in parents else i  # the id it is reconstructed as
 
     counts = {"extra ids": len(extra), "with its object": 0, "only with a sibling piece": 0,
-              "with another object": 0, "missed": 0, "different objects merged": 0}
+              "with another object": 0, "missed": 0, "different objects merged": 0,
+              "joined under the object's own id": 0}
     for frag, (par, _) in parents.items():
         if owner(frag) != owner(par):
             counts["different objects merged"] += 1
@@ -51,6 +54,7 @@ def check(scene: Path) -> dict[str, int]:
         group = {j for j in ids if root(j) == root(i)} - {i}
         if obj in group:
             counts["with its object"] += 1
+            counts["joined under the object's own id"] += int(root(i) == obj)
         elif any(owner(j) != obj for j in group):
             counts["with another object"] += 1
         elif group:

@@ -91,3 +91,17 @@ def test_corrected_input_relabels_a_fragment_and_drops_its_object():
     assert (out.masks == 1).sum() == 40 * 80 and not (out.masks == 7).any()
     assert len(out.warnings) == 1 and "instance 7 is taken as part of instance 1" in out.warnings[0]
     assert corrected_input(scene, {}, merge_fragments=False).ids == [1, 7]
+
+
+def test_a_declared_id_is_kept_over_a_larger_undeclared_piece():
+    """A split where the segmenter's new id (7) got the larger piece: the merge keeps the
+    id the user declared (1, with its objects.json entry) and 7 becomes the fragment;
+    undeclared on both sides, the larger piece's id is kept, as before."""
+    masks = np.zeros((H, W), np.int32)
+    masks[20:60, 20:45], masks[20:60, 45:100] = 1, 7
+    rgb = _image((200, 40, 40), (200, 40, 40), 45)
+    depth = _plane_depth()
+    parents = fragment_parents(masks, depth, rgb, declared_ids=[1])
+    assert list(parents) == [7] and parents[7][0] == 1
+    assert list(fragment_parents(masks, depth, rgb)) == [1]
+    assert list(fragment_parents(masks, depth, rgb, declared_ids=[1, 7])) == [1]

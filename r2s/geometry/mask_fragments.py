@@ -18,9 +18,10 @@ image,
 - the boundary is long enough to judge (``min_pairs`` valid pairs) and is a real part of
   the smaller piece's outline (``min_outline_fraction``).
 
-The smaller id is the fragment and goes to the larger one; an id with a shape prior is
-never a fragment (a prior describes a whole object), and two ids with priors are never
-merged. Chains (a fragment of a fragment) resolve to the root.
+The smaller id is the fragment and goes to the larger one, except that an id the user
+declared (an objects.json entry: a label, a mass) is kept over an undeclared one (a
+segmenter's new id); an id with a shape prior is never a fragment (a prior describes a
+whole object), and two ids with priors are never merged. Chains (a fragment of a fragment) resolve to the root.
 
 Pixel ``(row, col)``; depth along the camera z axis in metres, NaN = no reading.
 """
@@ -159,10 +160,13 @@ def _outline_fraction(masks: np.ndarray, small: int, large: int) -> float:
 
 
 def fragment_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
-                     protected_ids: Iterable[int] = ()) -> dict[int, tuple[int, str]]:
+                     protected_ids: Iterable[int] = (), declared_ids: Iterable[int] = ()
+                     ) -> dict[int, tuple[int, str]]:
     """``{fragment id: (the id of the object it is part of, why)}`` (see the module
-    docstring). ``protected_ids``: ids that are whole objects (they have a shape prior)."""
+    docstring). ``protected_ids``: ids that are whole objects (they have a shape prior);
+    ``declared_ids``: ids the user named (kept over undeclared ones when merged)."""
     protected = set(int(i) for i in protected_ids)
+    declared = set(int(i) for i in declared_ids) | protected
     parent: dict[int, tuple[int, str]] = {}
     evidence = sorted(boundary_evidence(masks, depth_m, rgb), key=lambda e: -e.pairs)
     for ev in evidence:
@@ -172,6 +176,8 @@ def fragment_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
         if small in protected:
             if large in protected:
                 continue
+            small, large = large, small
+        elif small in declared and large not in declared:
             small, large = large, small
         if small in parent:
             continue

@@ -5,9 +5,13 @@ a neighbour in front of or behind the object, and mixed ("flying") depth reading
 its depth edges. Completion turns every kept point into material, so a few foreign points
 stretch the footprint far past the object. Two tests, on the mask's pixels:
 
-- *support band*: points within ``plane_band_m`` of the support plane are the table (the
+- *support band*: points within ``plane_band_m`` of the support plane, on the mask's outer
+  ``edge_px`` ring, are the table (bleed reaches into a mask from its outline; the
   object's own base is restored by the extrusion down to the support); skipped when too
-  few points would remain (a flat object lying on the table);
+  few points would remain (a flat object lying on the table). Such points deeper inside
+  the mask are kept: table seen *through* an object's mask is cut off from the table
+  around it, while the floor of a plate or a tray, a few millimetres up, is the object's
+  own surface (dropping it carved the plate into a ring);
 - *surface continuity*: mask pixels are linked to their 8 image neighbours when their
   depths differ by less than ``max(jump_min_m, jump_fraction * z)`` (a surface seen even
   at a grazing angle changes depth smoothly from pixel to pixel; bleed onto something
@@ -19,16 +23,33 @@ stretch the footprint far past the object. Two tests, on the mask's pixels:
 from __future__ import annotations
 
 import numpy as np
-from scipy import sparse
+from scipy import ndimage, sparse
 from scipy.sparse.csgraph import connected_components
 
 from r2s.geometry.plane import signed_distance
 
 PLANE_BAND_M = 0.006
+EDGE_PX = 6
 JUMP_MIN_M = 0.008
 JUMP_FRACTION = 0.015
 MIN_REGION_FRACTION = 0.25
 MIN_KEEP_FRACTION = 0.3
+
+
+def interior_pixels(pixels: np.ndarray, edge_px: int) -> np.ndarray:
+    """(N,) bool: which of the mask pixels ``pixels`` ((N, 2) int (row, col), distinct) lie
+    more than ``edge_px`` pixels (Euclidean) inside the mask's outline. Holes in the pixel
+    set (no depth reading) are filled first, so a hole does not make an outline."""
+    pix = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
+    if len(pix) == 0:
+        return np.zeros(0, dtype=bool)
+    r0, c0 = pix.min(axis=0)
+    h, w = pix.max(axis=0) - (r0, c0) + 1
+    mask = np.zeros((h + 2, w + 2), dtype=bool)
+    mask[pix[:, 0] - r0 + 1, pix[:, 1] - c0 + 1] = True
+    mask = ndimage.binary_fill_holes(mask)
+    inside = ndimage.distance_transform_edt(mask)
+    return inside[pix[:, 0] - r0 + 1, pix[:, 1] - c0 + 1] > edge_px
 
 
 def surface_regions(pixels: np.ndarray, depth_m: np.ndarray, jump_min_m: float = JUMP_MIN_M,
@@ -65,7 +86,8 @@ def object_point_mask(points_world: np.ndarray, pixels: np.ndarray, depth_m: np.
                       plane_point: np.ndarray, plane_normal: np.ndarray,
                       plane_band_m: float = PLANE_BAND_M,
                       min_region_fraction: float = MIN_REGION_FRACTION,
-                      min_keep_fraction: float = MIN_KEEP_FRACTION) -> np.ndarray:
+                      min_keep_fraction: float = MIN_KEEP_FRACTION,
+                      edge_px: int = EDGE_PX) -> np.ndarray:
     """(N,) bool: which of an instance's observed points belong to the object.
 
     points_world : (N, 3) back-projected mask pixels; pixels : (N, 2) their (row, col);
@@ -80,6 +102,7 @@ def object_point_mask(points_world: np.ndarray, pixels: np.ndarray, depth_m: np.
     if n == 0:
         return keep
     above = signed_distance(pts, plane_point, plane_normal) > plane_band_m
+    above |= interior_pixels(pixels, edge_px)
     if np.count_nonzero(keep & above) >= floor:
         keep &= above
     idx = np.flatnonzero(keep)

@@ -162,12 +162,15 @@ class ObjectSpec:
     """What ``input/`` says about one instance.
 
     ``prior_mesh`` is an absolute path or None; ``world_from_prior`` is (4, 4) or None.
+    ``declared``: objects.json has an entry for this id (a label, a prior, a mass, ...);
+    an id that only appears in masks.png is not declared.
     """
 
     id: int
     label: str
     prior_mesh: Optional[Path] = None
     world_from_prior: Optional[np.ndarray] = None
+    declared: bool = False
 
 
 @dataclass(frozen=True)
@@ -401,7 +404,8 @@ def load_input(scene_dir: Path) -> InputScene:
                                      f"missing prior mesh of object {obj_id}")
             if entry.world_from_prior is not None:
                 pose = np.asarray(entry.world_from_prior, dtype=np.float64)
-        objects.append(ObjectSpec(id=obj_id, label=label, prior_mesh=prior, world_from_prior=pose))
+        objects.append(ObjectSpec(id=obj_id, label=label, prior_mesh=prior, world_from_prior=pose,
+                                  declared=entry is not None))
     if not objects:
         raise InputError(paths.masks, f"no instance has {MIN_MASK_PIXELS} pixels with valid "
                          f"depth (instances {', '.join(map(str, skipped))})")

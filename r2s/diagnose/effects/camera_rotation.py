@@ -15,7 +15,7 @@ import numpy as np
 from r2s.diagnose.data import Residuals
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
 from r2s.diagnose.effects._gravity import angle_axis, correction_to_level
-from r2s.io.input_scene import Camera, InputScene, ObjectSpec
+from r2s.io.input_scene import Camera, InputScene
 from r2s.io.state import SceneState
 
 
@@ -57,8 +57,7 @@ class CameraRotation(Effect):
         corr = np.asarray(params["world_correction"], dtype=np.float64)
         camera = self.apply_to_camera(scene.camera, params)
         objects = [o if o.world_from_prior is None else
-                   ObjectSpec(id=o.id, label=o.label, prior_mesh=o.prior_mesh,
-                              world_from_prior=corr @ o.world_from_prior)
+                   replace(o, world_from_prior=corr @ o.world_from_prior)
                    for o in scene.objects]
         return replace(scene, camera=camera, objects=objects)
 
