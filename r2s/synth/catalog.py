@@ -162,7 +162,16 @@ PYBULLET_ENTRIES: tuple[CatalogEntry, ...] = (
     for k, i in enumerate(RANDOM_URDF_IDS)
 )
 
-CATALOG: dict[str, CatalogEntry] = {e.name: e for e in YCB_ENTRIES + PYBULLET_ENTRIES}
+NAMED_ONLY_ENTRIES: tuple[CatalogEntry, ...] = (
+    CatalogEntry("029_plate", "ycb", "029_plate.stl", (0.9, 0.9, 0.9), (0.92, 0.92, 0.88),
+                 (0.75, 0.20, 0.15), "speckle", _SHELL),
+)
+"""Objects drawn only when named in ``objects`` (a plate to put things on): kept out of
+the ``ycb`` set so that its scenes for a given seed stay what they were. The plate is
+scaled to 0.9 (235 mm across) to fit :data:`MAX_EXTENT_M`."""
+
+CATALOG: dict[str, CatalogEntry] = {e.name: e for e in
+                                    YCB_ENTRIES + PYBULLET_ENTRIES + NAMED_ONLY_ENTRIES}
 OBJECT_SETS: tuple[str, ...] = ("ycb", "pybullet", "mixed")
 
 
