@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from r2s.geometry.collision_trim import (inside_depth_m, surface_points, trim_pieces,
-                                         trim_scene_pieces)
+from r2s.geometry.collision_trim import (capped_hull, inside_depth_m, surface_points,
+                                         trim_pieces, trim_scene_pieces)
 from r2s.geometry.convex_params import ConvexParams
 from r2s.io.mesh_io import save_mesh
 from r2s.io.pieces_file import read_pieces, write_pieces
@@ -62,6 +62,19 @@ def test_hull_of_the_u_is_trimmed_out_of_the_notch_and_still_covers_the_u():
     again, _ = trim_pieces([hull], u, box_points)
     assert [np.array_equal(p.vertices, q.vertices) for p, q in zip(pieces, again)] == \
         [True] * len(pieces) and len(again) == len(pieces)
+
+
+def test_capped_hull_keeps_a_sphere_within_3_mm():
+    """A rebuilt piece has at most 64 vertices (as V-HACD's): of the hull of 5000 samples
+    of a 5 cm sphere, the 64 kept leave no sample more than 3 mm outside (measured 2.8 mm;
+    an evenly spread 64-vertex polytope leaves about 1.6 mm) and 0.9 of the volume."""
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.05)
+    points = surface_points(sphere, 5000, seed=1)
+    hull = capped_hull(points, 64)
+    assert len(hull.vertices) == 64
+    assert -float(inside_depth_m(hull, points, 0.01).min()) <= 3e-3
+    assert hull.volume >= 0.9 * sphere.volume
+    assert capped_hull(points[:3]) is None  # degenerate
 
 
 def test_pieces_no_neighbour_reaches_into_are_kept_as_given():

@@ -37,7 +37,7 @@ NEIGHBOUR_SAMPLES = 4_000
 MAX_SPLIT_DEPTH = 3
 """A trimmed piece becomes at most 2**MAX_SPLIT_DEPTH pieces."""
 
-MAX_HULL_VERTICES = 32
+MAX_HULL_VERTICES = 64
 """Most vertices of a rebuilt piece (V-HACD's bound here too: Bullet's cost grows with it)."""
 
 SPLIT_OVERLAP_M = 1.5e-3
@@ -78,28 +78,39 @@ def surface_points(mesh: trimesh.Trimesh, count: int, seed: int = 0) -> np.ndarr
     return np.vstack([np.asarray(samples), np.asarray(mesh.vertices)])
 
 
-def farthest_point_subset(points: np.ndarray, count: int) -> np.ndarray:
-    """(count,) indices of a spread subset of (N, 3) points: greedy farthest-point order
-    from the lexicographically smallest point (deterministic)."""
-    chosen = [int(np.lexsort(points.T[::-1])[0])]
-    dist = np.linalg.norm(points - points[chosen[0]], axis=1)
-    for _ in range(min(count, len(points)) - 1):
-        chosen.append(int(np.argmax(dist)))
-        dist = np.minimum(dist, np.linalg.norm(points - points[chosen[-1]], axis=1))
+def _greedy_hull_vertices(corners: np.ndarray, count: int) -> np.ndarray:
+    """(count,) indices of the hull ``corners`` (N, 3) whose hull loses the least: start
+    from the extremes along x, y, z, then add, one at a time, the corner farthest outside
+    the hull of those chosen (deterministic)."""
+    chosen = sorted({int(i) for axis in range(3)
+                     for i in (np.argmin(corners[:, axis]), np.argmax(corners[:, axis]))})
+    while len(chosen) < min(count, len(corners)):
+        planes = _hull_planes(corners[chosen])
+        if planes is None:  # flat start: add the corner farthest from those chosen
+            far = np.min(np.linalg.norm(corners[:, None] - corners[chosen][None], axis=2),
+                         axis=1)
+            chosen.append(int(np.argmax(far)))
+            continue
+        outside = -_depths(planes, corners)
+        outside[chosen] = -np.inf
+        if outside.max() <= 0:
+            break
+        chosen.append(int(np.argmax(outside)))
     return np.asarray(chosen)
 
 
-def _hull(points: np.ndarray) -> trimesh.Trimesh | None:
-    """Convex hull of (N, 3) points with at most :data:`MAX_HULL_VERTICES` vertices (a
-    spread subset of the full hull's vertices), or None when degenerate."""
+def capped_hull(points: np.ndarray, max_vertices: int = MAX_HULL_VERTICES
+                ) -> trimesh.Trimesh | None:
+    """Convex hull of (N, 3) points with at most ``max_vertices`` vertices (of the full
+    hull's vertices, those that keep the most of it), or None when degenerate."""
     if len(points) < 4:
         return None
     try:
         hull = trimesh.convex.convex_hull(points)
-        if len(hull.vertices) > MAX_HULL_VERTICES:
+        if len(hull.vertices) > max_vertices:
             corners = np.asarray(hull.vertices)
             hull = trimesh.convex.convex_hull(
-                corners[farthest_point_subset(corners, MAX_HULL_VERTICES)])
+                corners[_greedy_hull_vertices(corners, max_vertices)])
     except (QhullError, ValueError):
         return None
     return hull if hull.volume > 1e-10 else None
@@ -177,7 +188,7 @@ def _rebuild(own: np.ndarray, intruders: np.ndarray, tol_m: float,
         best = _best_split(own, inside, tol_m)
         if best is not None and best[0] < _intrusion(planes, inside, tol_m):
             return [h for part in best[1] for h in _rebuild(part, intruders, tol_m, depth + 1)]
-    hull = _hull(own)
+    hull = capped_hull(own)
     return [] if hull is None else [hull]
 
 
