@@ -110,6 +110,9 @@ def test_trim_scene_pieces_uses_each_objects_pose():
     assert reports[1].depth_before_m == pytest.approx(0.010, abs=2e-4)
     assert reports[1].depth_after_m <= 1e-3 and len(out[1]) >= 3
     assert reports[2].pieces_after == 1 and reports[2].depth_before_m == 0.0
+    kept, only_box = trim_scene_pieces({1: [u.convex_hull], 2: [box.convex_hull]},
+                                       {1: u, 2: box}, poses, only={2})
+    assert 1 not in only_box and len(kept[1]) == 1 and kept[1][0].volume == u.convex_hull.volume
 
 
 def test_physopt_writes_the_pieces_it_checked(tmp_path):

@@ -241,9 +241,10 @@ def trim_pieces(pieces: list[trimesh.Trimesh], mesh: trimesh.Trimesh,
 
 def trim_scene_pieces(pieces: dict[int, list[trimesh.Trimesh]],
                       meshes: dict[int, trimesh.Trimesh], poses: dict[int, np.ndarray],
-                      tol_m: float = TRIM_TOLERANCE_M
+                      tol_m: float = TRIM_TOLERANCE_M, only: set[int] | None = None
                       ) -> tuple[dict[int, list[trimesh.Trimesh]], dict[int, TrimReport]]:
-    """:func:`trim_pieces` for every object against all the others' visual meshes.
+    """:func:`trim_pieces` for every object (or those in ``only``; the others keep their
+    pieces) against all the others' visual meshes.
 
     pieces, meshes: by object id, object frame; poses: id -> (4, 4) world_from_object."""
     world_samples = {i: surface_points(m, NEIGHBOUR_SAMPLES, seed=2)
@@ -252,7 +253,7 @@ def trim_scene_pieces(pieces: dict[int, list[trimesh.Trimesh]],
     out, reports = {}, {}
     for i in sorted(pieces):
         others = [world_samples[j] for j in sorted(meshes) if j != i]
-        if not others:
+        if not others or (only is not None and i not in only):
             out[i] = list(pieces[i])
             continue
         object_from_world = np.linalg.inv(np.asarray(poses[i]))

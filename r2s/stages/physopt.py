@@ -67,10 +67,11 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
                                                 "(same as export).")
     max_convex_pieces: int = Field(DEFAULT_CONVEX.max_pieces, ge=1,
                                    description="Most convex pieces (same as export).")
-    trim_collision: bool = Field(True, description="Rebuild the convex pieces a neighbour's "
-                                                   "visual mesh reaches into from the object's "
-                                                   "own surface (r2s/geometry/collision_trim.py); "
-                                                   "export uses the pieces physopt checked.")
+    trim_collision: Literal["completed", "all", "off"] = Field(
+        "completed", description="Rebuild the convex pieces a neighbour's visual mesh reaches "
+                                 "into from the object's own surface "
+                                 "(r2s/geometry/collision_trim.py): of completed objects, of "
+                                 "all, or of none; export uses the pieces physopt checked.")
 
 
 def _source(paths: ScenePaths, options: Options, manifest: Manifest) -> str:
@@ -142,11 +143,14 @@ def _collision_pieces(ctx: StageContext, state: SceneState, meshes: dict,
         ctx.progress(f"object {o.id}: collision pieces", 0.1 * k / max(len(state.objects), 1))
         pieces[o.id] = cached_convex_decomposition(meshes[o.id], ctx.paths.convex_cache,
                                                    **convex.as_kwargs())
-    if not ctx.options.trim_collision:
+    mode = ctx.options.trim_collision
+    if mode == "off":
         return _Pieces(pieces, {})
     ctx.progress("collision pieces against the neighbours", 0.1)
+    only = None if mode == "all" else {o.id for o in state.objects if o.source == "completed"}
     trimmed, reports = trim_scene_pieces(pieces, meshes,
-                                         {o.id: np.asarray(o.pose) for o in state.objects})
+                                         {o.id: np.asarray(o.pose) for o in state.objects},
+                                         only=only)
     return _Pieces(trimmed, reports)
 
 
