@@ -79,11 +79,13 @@ class Options(StageOptions):
     scale_sigma: float = Field(0.01, gt=0, description="Floor of the relative size error of one "
                                                        "prior (the priors' measured spread is "
                                                        "used when larger).")
-    prior_scale_sigma: float = Field(0.02, gt=0, description="Prior spread of one prior's "
-                                                              "size error (log), pooled with "
-                                                              "the measured spread.")
-    prior_scale_dof: float = Field(4.0, ge=0, description="How many objects' worth that "
-                                                          "prior spread counts for.")
+    prior_scale_sigma: float = Field(0.025, gt=0, description="Prior spread of one prior's "
+                                                               "size error (log), pooled with "
+                                                               "the measured spread (measured "
+                                                               "on clean scenes: "
+                                                               "docs/diagnose.md section 4).")
+    prior_scale_dof: float = Field(20.0, ge=0, description="How many objects' worth that "
+                                                           "prior spread counts for.")
     support_sigma_deg: float = Field(0.3, gt=0, description="Noise of each table tilt component, "
                                                             "degrees.")
     min_fitness: float = Field(0.6, ge=0, le=1, description="An object's shape fits the data when "

@@ -52,8 +52,8 @@ class MeasureSettings:
     """Noise levels and choices of the measurement (the stage's options)."""
 
     scale_sigma: float = 0.01
-    prior_scale_sigma: float = 0.02
-    prior_scale_dof: float = 4.0
+    prior_scale_sigma: float = 0.025
+    prior_scale_dof: float = 20.0
     support_sigma_deg: float = 0.3
     table_shape_sigma_m: float = 0.001
     min_fitness: float = 0.6

@@ -10,6 +10,17 @@ docs/diagnose.md). The table-shape block (:func:`r2s.diagnose.stats.blocks.table
 measures the bend; its SSE as a function of the offset corrected away is close to a
 parabola, ``SSE(o) = SSE_min + ((o - o_T) / sigma_T)^2``, whose vertex ``o_T`` is the
 table's estimate and ``sigma_T`` its standard error (the block is a chi-square).
+
+The configured tile noise (``sigma_m`` of the data, 0.4 mm) leaves room for a real table's
+flatness; the benchmark's synthetic tables scatter by about 0.2 mm per tile, so ``sigma_T``
+from it is about twice too wide and a 1 cm offset seen over a short range of depths falls
+under the bar. :func:`table_noise_level` measures the scene's own tile scatter about the
+flattest correction and pools it with the configured level (worth
+:data:`NOISE_PRIOR_TILES` tiles), like the priors' noise level
+(:func:`r2s.diagnose.stats.noise.scale_noise_level`); :func:`with_measured_noise` gives
+the data at that level, which the depth effects use for the table's evidence. A table
+bent by something else (a lens, a row error) keeps a large scatter after the best offset,
+so its level rises and an offset is held to more evidence there.
 """
 
 from __future__ import annotations
@@ -30,6 +41,15 @@ MAX_TABLE_OFFSET_M = 0.03
 """A table that asks for a larger offset is bent by something else (a depth error that
 depends on the image row bends it the same way, docs/diagnose.md section 6): the catalogue
 holds sensor offsets of up to a few centimetres."""
+
+
+NOISE_PRIOR_TILES = 10.0
+"""How many tiles' worth the configured tile noise counts for when it is pooled with the
+scene's measured tile scatter (:func:`table_noise_level`)."""
+
+PLANE_AND_OFFSET_PARAMS = 4
+"""Parameters fitted to the tile means before their scatter is measured: the plane (3)
+and the offset (1)."""
 
 
 @dataclass(frozen=True)
@@ -103,3 +123,32 @@ def table_offset_evidence(shape: Optional[TableShapeData], step_m: float = GRID_
         curvature = curvature_at
     return TableOffsetEvidence(offset_m=centre, sigma_m=float(1.0 / np.sqrt(curvature)),
                                sse_at_zero=sse0)
+
+
+def table_noise_level(shape: TableShapeData, offset_m: float,
+                      prior_tiles: float = NOISE_PRIOR_TILES) -> tuple[float, float]:
+    """Noise level (m) of one tile mean and its degrees of freedom: the scatter of the
+    tile means about the plane fitted to the table corrected by ``offset_m`` (the
+    flattest correction), ``T - 4`` degrees of freedom for T tiles, pooled with the
+    configured ``shape.sigma_m`` worth ``prior_tiles`` tiles:
+    ``sqrt((prior_tiles sigma^2 + sum(mean_t^2)) / (prior_tiles + T - 4))``."""
+    means = np.asarray(corrected_table(shape, 1.0, offset_m).tiles().mean_m, dtype=np.float64)
+    dof = max(len(means) - PLANE_AND_OFFSET_PARAMS, 0)
+    total = prior_tiles + dof
+    if total <= 0:
+        return float(shape.sigma_m), 0.0
+    ss = float(np.sum(means ** 2)) if dof > 0 else 0.0
+    return float(np.sqrt((prior_tiles * shape.sigma_m ** 2 + ss) / total)), float(total)
+
+
+def with_measured_noise(shape: Optional[TableShapeData]) -> Optional[TableShapeData]:
+    """``shape`` with its tile noise set to :func:`table_noise_level` at the offset that
+    makes the table flattest (unchanged without offset evidence, or when the flattest
+    offset lies at the end of the grid: bent by something else)."""
+    if shape is None:
+        return None
+    ev = shape.offset_evidence()
+    if ev is None or not np.isfinite(ev.sigma_m):
+        return shape
+    sigma, _ = table_noise_level(shape, ev.offset_m)
+    return replace(shape, sigma_m=sigma)
