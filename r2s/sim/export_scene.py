@@ -24,6 +24,7 @@ from r2s.geometry.mass_properties import mass_properties
 from r2s.io.export_writer import ExportBody, write_export
 from r2s.io.mesh_io import load_mesh, same_triangles, welded
 from r2s.io.paths import ScenePaths
+from r2s.io.pieces_file import read_pieces
 from r2s.io.scene_json import read_gt_scene
 from r2s.physical.provenance import resolve_physics
 
@@ -78,6 +79,11 @@ class ObjectItem:
     """A mesh whose convex pieces to use when it holds the same triangles as ``mesh_path``
     (physopt's, whose pieces its checks verified: texture reorders the vertices, and V-HACD
     depends on their order)."""
+    collision_pieces_path: Optional[Path] = None
+    """physopt's file of the pieces it checked (:mod:`r2s.io.pieces_file`; trimmed against
+    the neighbours, so not a function of the mesh alone), for ``collision_mesh_path``'s mesh
+    or, when that is None, for ``mesh_path``'s. Used when it holds pieces made with the
+    export's decomposition parameters and the meshes hold the same triangles."""
 
 
 def gt_items(paths: ScenePaths) -> tuple[list, dict, list[ObjectItem]]:
@@ -105,8 +111,8 @@ def build_and_write(out_dir: Path, gravity: list, support: dict, items: list[Obj
         progress(f"object {item.id}: convex decomposition", k / max(len(items), 1))
         mesh = load_mesh(item.mesh_path)
         geom = welded(mesh)
-        pieces = cached_convex_decomposition(_collision_geometry(item, geom), cache_dir,
-                                             **params.convex.as_kwargs())
+        pieces = _checked_pieces(item, geom, params.convex) or cached_convex_decomposition(
+            _collision_geometry(item, geom), cache_dir, **params.convex.as_kwargs())
         unit = mass_properties(geom, pieces, mass_kg=1.0)
         record = dict(label=item.label, mass_kg=item.mass_kg, friction=item.friction,
                       com=item.com, stage=item.stage, provenance=item.provenance,
@@ -127,6 +133,17 @@ def build_and_write(out_dir: Path, gravity: list, support: dict, items: list[Obj
     support.setdefault("friction", params.default_friction)
     write_export(out_dir, gravity, support, bodies, camera=camera)
     return bodies
+
+
+def _checked_pieces(item: ObjectItem, geom: trimesh.Trimesh, convex: ConvexParams
+                    ) -> Optional[list[trimesh.Trimesh]]:
+    """The pieces physopt checked (``item.collision_pieces_path``) when they belong to this
+    mesh and these parameters, else None."""
+    if item.collision_pieces_path is None:
+        return None
+    if item.collision_mesh_path is not None and _collision_geometry(item, geom) is geom:
+        return None  # physopt's mesh holds other triangles: its pieces are not this mesh's
+    return read_pieces(item.collision_pieces_path, convex.as_kwargs())
 
 
 def _collision_geometry(item: ObjectItem, geom: trimesh.Trimesh) -> trimesh.Trimesh:

@@ -21,7 +21,7 @@ from r2s.scene_model import corrected_input, corrected_state
 from r2s.errors import R2SError, StageError
 from r2s.io.input_scene import load_camera, load_input
 from r2s.io.mesh_io import load_mesh
-from r2s.io.paths import ScenePaths
+from r2s.io.paths import PHYSOPT_COLLISION_DIR, ScenePaths
 from r2s.io.state import read_state
 from r2s.metrics.observation_check import (SEEN_TOLERANCE_DEG, SEEN_TOLERANCE_M, FlagTolerances,
                                           check_observation)
@@ -86,6 +86,15 @@ def _collision_stage(paths: ScenePaths, source: str) -> str | None:
     return None
 
 
+def _checked_pieces_file(paths: ScenePaths, stage: str, object_id: int) -> Path | None:
+    """physopt's file of the pieces it checked for this object, when physopt is the
+    exported stage or texture's collision stage (:func:`_collision_stage`)."""
+    if stage != "physopt" and _collision_stage(paths, stage) != "physopt":
+        return None
+    path = paths.stage_dir("physopt") / PHYSOPT_COLLISION_DIR / f"{object_id}.npz"
+    return path if path.is_file() else None
+
+
 def _bodies_from_state(paths: ScenePaths, stage: str, model: dict
                        ) -> tuple[list, dict, list[ObjectItem]]:
     raw = read_state(paths.stage_dir(stage))
@@ -106,7 +115,8 @@ def _bodies_from_state(paths: ScenePaths, stage: str, model: dict
             provenance=extra.get("provenance"), fitted=_fitted(raw.object(obj.id), obj),
             extra={"source": obj.source, "stage": stage,
                    **{k: v for k, v in extra.items() if _scalar(v)}},
-            collision_mesh_path=collision_meshes.get(obj.id)))
+            collision_mesh_path=collision_meshes.get(obj.id),
+            collision_pieces_path=_checked_pieces_file(paths, stage, obj.id)))
     return state.gravity, state.support.model_dump(), items
 
 

@@ -12,19 +12,23 @@ The algorithm lives in :mod:`r2s.physopt`; this module reads, calls it and write
 from __future__ import annotations
 
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, Optional
 
+import numpy as np
 from pydantic import Field
 
 from r2s.errors import StageError
+from r2s.geometry.collision_trim import TrimReport, trim_scene_pieces
 from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexMethod, ConvexParams
 from r2s.io.atomic import atomic_write_json
 from r2s.io.latest_state import latest_state_stage
 from r2s.io.manifest import Manifest
 from r2s.io.mesh_io import load_mesh, welded
-from r2s.io.paths import PHYSOPT_LOG_FILE, ScenePaths
+from r2s.io.paths import PHYSOPT_COLLISION_DIR, PHYSOPT_LOG_FILE, ScenePaths
+from r2s.io.pieces_file import write_pieces
 from r2s.io.state import SceneState, read_state, write_state
 from r2s.physopt.hierarchy import (descendants, lowest_points_m, order_root_to_leaves,
                                    parents_from_graph)
@@ -63,6 +67,11 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
                                                 "(same as export).")
     max_convex_pieces: int = Field(DEFAULT_CONVEX.max_pieces, ge=1,
                                    description="Most convex pieces (same as export).")
+    trim_collision: Literal["completed", "all", "off"] = Field(
+        "completed", description="Rebuild the convex pieces a neighbour's visual mesh reaches "
+                                 "into from the object's own surface "
+                                 "(r2s/geometry/collision_trim.py): of completed objects, of "
+                                 "all, or of none; export uses the pieces physopt checked.")
 
 
 def _source(paths: ScenePaths, options: Options, manifest: Manifest) -> str:
@@ -86,18 +95,15 @@ def run(ctx: StageContext) -> dict:
     state = corrected_state(read_state(paths.stage_dir(src)), ctx.manifest.model)
     meshes = {o.id: welded(load_mesh(paths.stage_dir(src) / o.mesh)) for o in state.objects}
     convex = ConvexParams(opt.convex_threshold, opt.max_convex_pieces, opt.convex_method)
-    pieces = {}
-    for k, o in enumerate(state.objects):
-        ctx.progress(f"object {o.id}: collision pieces", 0.1 * k / max(len(state.objects), 1))
-        pieces[o.id] = cached_convex_decomposition(meshes[o.id], paths.convex_cache,
-                                                   **convex.as_kwargs())
-    params = initial_params(state, meshes, pieces, opt.density_kg_m3, opt.mass_bounds,
+    pieces = _collision_pieces(ctx, state, meshes, convex)
+    params = initial_params(state, meshes, pieces.pieces, opt.density_kg_m3, opt.mass_bounds,
                             opt.friction_init, user_entries(paths.root))
     parents = parents_from_graph(paths.contact_graph)
     order = order_root_to_leaves([o.id for o in state.objects], parents,
                                  lowest_points_m(state.objects, meshes))
     log: dict = {"source": src, "order": order, "parents": parents,
-                 "objects": {i: [] for i in order}, "rounds": []}
+                 "objects": {i: [] for i in order}, "rounds": [],
+                 "collision_trim": _trim_log(pieces.reports)}
     if opt.only is not None:
         if opt.only not in params:
             raise StageError(f"physopt only={opt.only}: no object {opt.only} "
@@ -106,15 +112,55 @@ def run(ctx: StageContext) -> dict:
         params = keep_previous(params, read_state(paths.stage_dir("physopt")), rerun)
         log["only"] = {"object": opt.only, "rerun": sorted(rerun)}
 
-    solved = solve_scene(params, pieces, meshes, state, order,
+    solved = solve_scene(params, pieces.pieces, meshes, state, order,
                          seen_poses(paths, state, ctx.manifest.model), opt, log, ctx.progress)
     params, final, flags = solved.params, solved.drift, solved.flags
     _write(ctx, paths.stage_dir(src), state, params, final, log, flags)
+    for i, object_pieces in pieces.pieces.items():
+        write_pieces(ctx.out_dir / PHYSOPT_COLLISION_DIR / f"{i}.npz", object_pieces,
+                     convex.as_kwargs())
     ctx.progress("done", 1.0)
     return {"source": src, "objects": len(state.objects),
             "still_moving": len(opt.moving(final)), "rounds": len(log["rounds"]) - 1,
             "flagged_objects": len(flags),
             "warnings": [f"object {i}: {reason}" for i, reason in sorted(flags.items())]}
+
+
+@dataclass(frozen=True)
+class _Pieces:
+    """pieces: id -> convex pieces (object frame) the checks use and export reuses;
+    reports: id -> what trimming against the neighbours did (empty when off)."""
+
+    pieces: dict[int, list]
+    reports: dict[int, TrimReport]
+
+
+def _collision_pieces(ctx: StageContext, state: SceneState, meshes: dict,
+                      convex: ConvexParams) -> _Pieces:
+    """Each object's convex decomposition (cached), trimmed where neighbours reach in."""
+    pieces = {}
+    for k, o in enumerate(state.objects):
+        ctx.progress(f"object {o.id}: collision pieces", 0.1 * k / max(len(state.objects), 1))
+        pieces[o.id] = cached_convex_decomposition(meshes[o.id], ctx.paths.convex_cache,
+                                                   **convex.as_kwargs())
+    mode = ctx.options.trim_collision
+    if mode == "off":
+        return _Pieces(pieces, {})
+    ctx.progress("collision pieces against the neighbours", 0.1)
+    only = None if mode == "all" else {o.id for o in state.objects if o.source == "completed"}
+    trimmed, reports = trim_scene_pieces(pieces, meshes,
+                                         {o.id: np.asarray(o.pose) for o in state.objects},
+                                         only=only)
+    return _Pieces(trimmed, reports)
+
+
+def _trim_log(reports: dict[int, TrimReport]) -> dict[str, dict]:
+    """physopt/log.json's record of the objects whose pieces were trimmed (depths in mm)."""
+    return {str(i): {"depth_before_mm": round(1000 * r.depth_before_m, 2),
+                     "depth_after_mm": round(1000 * r.depth_after_m, 2),
+                     "pieces_before": r.pieces_before, "pieces_after": r.pieces_after}
+            for i, r in sorted(reports.items()) if r.pieces_before != r.pieces_after
+            or r.depth_before_m != r.depth_after_m}
 
 
 def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, final: dict,
