@@ -72,6 +72,9 @@ def main() -> None:
         completed = _init(root, "completion")
         for i in sorted(with_prior):
             cd_p, rec = with_prior[i]
+            if rec["prior"] is None or rec["completion"] is None:
+                print(f"| {root.name} | {i} | - | not completed | {cd_p:.1f} | - | prior | - |")
+                continue
             cd_c = completed[i][0] if i in completed else float("nan")
             p, c = ViewScore(**rec["prior"]), ViewScore(**rec["completion"])
             chosen, _ = choose(p, c, margins)

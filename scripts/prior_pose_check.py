@@ -79,7 +79,7 @@ def _rows(root: Path) -> dict[int, dict[str, tuple]]:
     out: dict[int, dict[str, tuple]] = {}
     for o in state.objects:
         record = getattr(o, "prior_choice", None)
-        if record is None or o.id not in gt:
+        if record is None or record.get("prior") is None or o.id not in gt:
             continue
         truth = posed(load_mesh(paths.gt / gt[o.id].mesh), np.asarray(gt[o.id].world_from_object))
         at_gt = posed(load_mesh(specs[o.id].prior_mesh), np.asarray(gt[o.id].world_from_object))

@@ -92,3 +92,27 @@ def test_init_completes_a_prior_too_long_and_keeps_an_exact_one(tmp_path):
     assert not any(f.startswith("object 2: its prior") for f in result.summary["flags"])
     forced = run_stage(STAGE, scene, Options(icp_yaw_hypotheses=1, prior_choice="prior"))
     assert forced.summary["completed"] == 0
+
+
+def test_a_prior_is_kept_when_its_completion_fails(tmp_path, monkeypatch):
+    """Where the observation cannot be completed (too few or collinear points: init's
+    completion raises a StageError), the choice keeps the registered prior and records no
+    scores, instead of failing the stage: both objects of the scene keep their priors."""
+    import r2s.stages.init as init_stage
+    from r2s.errors import StageError
+    from r2s.io.paths import ScenePaths
+    from r2s.io.state import read_state
+    from r2s.runner.base import run_stage
+
+    def no_completion(*args, **kwargs):
+        raise StageError("object: completion failed (collinear points)")
+
+    monkeypatch.setattr(init_stage, "_complete", no_completion)
+    K, world_from_camera = _view()
+    scene = write_input_scene(tmp_path / "scene", _scene(), WIDTH, HEIGHT, K=K,
+                              world_from_camera=world_from_camera)
+    result = run_stage(init_stage.STAGE, scene, init_stage.Options(icp_yaw_hypotheses=1))
+    state = {o.id: o for o in read_state(ScenePaths(scene).stage_dir("init")).objects}
+    assert {i: o.source for i, o in state.items()} == {1: "prior", 2: "prior"}
+    assert state[1].prior_choice == {"chosen": "prior", "prior": None, "completion": None}
+    assert result.summary["prior_choice"] == {"1": "prior", "2": "prior"}

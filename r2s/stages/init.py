@@ -351,7 +351,11 @@ def _choose_prior_or_completion(scene: InputScene, observed: dict, shapes: dict[
     completions: dict[int, tuple] = {}
     for i in sorted(i for i, shape in shapes.items() if shape[2] is not None):
         others = [(j, m) for j, m in posed.items() if j != i]
-        completions[i] = _complete(scene, specs[i], observed, plane, o)
+        try:
+            completions[i] = _complete(scene, specs[i], observed, plane, o)
+        except StageError:  # too few or collinear points: nothing to compare, keep the prior
+            records[i] = {"chosen": "prior", "prior": None, "completion": None}
+            continue
         scores = [score_in_view(candidate, i, others, observed[i][0], cam.K,
                                 cam.world_from_camera, scene.depth_m, scene.masks)
                   for candidate in (posed[i], _posed(*completions[i]))]
