@@ -3,7 +3,8 @@
 
 For each object of STAGE's state (default geomopt): the volume of the union of its convex
 pieces (r2s/geometry/convex.py, the default decomposition; with --trimmed, as physopt
-trims them against the neighbours at these poses, r2s/geometry/collision_trim.py) over its
+trims them by default: the completed objects' pieces against the neighbours at these
+poses, r2s/geometry/collision_trim.py) over its
 mesh's volume (union: 200k deterministic random points in the pieces' box), its mesh's
 volume over its convex hull's, and how deep (mm) the visual mesh of each other object
 reaches into its pieces (4000 seeded surface samples; listed when over 2 mm; physopt
@@ -52,8 +53,10 @@ def main() -> None:
     meshes = {o.id: welded(load_mesh(args.scene / args.stage / o.mesh)) for o in state.objects}
     poses = {o.id: np.asarray(o.pose) for o in state.objects}
     pieces = {i: convex_decomposition(m) for i, m in meshes.items()}
-    if args.trimmed:
-        pieces, _ = trim_scene_pieces(pieces, meshes, poses)
+    if args.trimmed:  # physopt's default (trim_collision=completed): completed objects only
+        pieces, _ = trim_scene_pieces(pieces, meshes, poses,
+                                      only={o.id for o in state.objects
+                                            if o.source == "completed"})
     for a, mesh in meshes.items():
         ratio = union_volume_m3(pieces[a]) / mesh.volume
         line = (f"object {a}: {len(pieces[a])} pieces, pieces/mesh volume {ratio:.2f}, "

@@ -25,6 +25,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull, QhullError
 
+from r2s.geometry.camera import transform_points
 from r2s.geometry.sdf import occupancy, raycasting_scene
 
 TRIM_TOLERANCE_M = 1e-3
@@ -69,8 +70,8 @@ def inside_depth_m(piece: trimesh.Trimesh, points: np.ndarray, slack_m: float = 
         return out
     normals = np.asarray(piece.face_normals)
     offsets = np.einsum("ij,ij->i", normals, np.asarray(piece.triangles[:, 0]))
-    planes = np.unique(np.round(np.column_stack([normals, offsets]), 9), axis=0)
-    out[near] = np.min(planes[None, :, 3] - points[near] @ planes[:, :3].T, axis=1)
+    planes = np.unique(np.round(np.column_stack([normals, -offsets]), 9), axis=0)
+    out[near] = _depths(planes, points[near])
     return out
 
 
@@ -226,13 +227,14 @@ def trim_pieces(pieces: list[trimesh.Trimesh], mesh: trimesh.Trimesh,
     solid = raycasting_scene(mesh.vertices, mesh.faces) if mesh.is_watertight else None
     if len(pts) and solid is not None:
         pts = pts[~occupancy(solid, pts)]
-    before = max([_max_depth(p, pts) for p in pieces] + [0.0])
+    piece_depths = [_max_depth(p, pts) for p in pieces]
+    before = max(piece_depths + [0.0])
     if before <= tol_m:
         return list(pieces), TrimReport(before, before, len(pieces), len(pieces))
     own_surface = surface_points(mesh, SURFACE_SAMPLES)
     out: list[trimesh.Trimesh] = []
-    for piece in pieces:
-        if _max_depth(piece, pts) <= tol_m:
+    for piece, piece_depth in zip(pieces, piece_depths):
+        if piece_depth <= tol_m:
             out.append(piece)
             continue
         rebuilt = _rebuild(_own_points_of(piece, own_surface, solid), pts, tol_m, 0)
@@ -249,8 +251,7 @@ def trim_scene_pieces(pieces: dict[int, list[trimesh.Trimesh]],
     pieces) against all the others' visual meshes.
 
     pieces, meshes: by object id, object frame; poses: id -> (4, 4) world_from_object."""
-    world_samples = {i: surface_points(m, NEIGHBOUR_SAMPLES, seed=2)
-                     @ np.asarray(poses[i])[:3, :3].T + np.asarray(poses[i])[:3, 3]
+    world_samples = {i: transform_points(poses[i], surface_points(m, NEIGHBOUR_SAMPLES, seed=2))
                      for i, m in meshes.items()}
     out, reports = {}, {}
     for i in sorted(pieces):
@@ -258,7 +259,6 @@ def trim_scene_pieces(pieces: dict[int, list[trimesh.Trimesh]],
         if not others or (only is not None and i not in only):
             out[i] = list(pieces[i])
             continue
-        object_from_world = np.linalg.inv(np.asarray(poses[i]))
-        local = (np.vstack(others) @ object_from_world[:3, :3].T + object_from_world[:3, 3])
+        local = transform_points(np.linalg.inv(np.asarray(poses[i])), np.vstack(others))
         out[i], reports[i] = trim_pieces(pieces[i], meshes[i], local, tol_m)
     return out, reports

@@ -43,13 +43,19 @@ def interior_pixels(pixels: np.ndarray, edge_px: int) -> np.ndarray:
     pix = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
     if len(pix) == 0:
         return np.zeros(0, dtype=bool)
+    rr, cc, shape = _window(pix)
+    mask = np.zeros(shape, dtype=bool)
+    mask[rr, cc] = True
+    inside = ndimage.distance_transform_edt(ndimage.binary_fill_holes(mask))
+    return inside[rr, cc] > edge_px
+
+
+def _window(pix: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """Rows and columns of the (N, 2) pixels in their bounding box grown by one pixel on
+    every side, and that window's shape."""
     r0, c0 = pix.min(axis=0)
     h, w = pix.max(axis=0) - (r0, c0) + 1
-    mask = np.zeros((h + 2, w + 2), dtype=bool)
-    mask[pix[:, 0] - r0 + 1, pix[:, 1] - c0 + 1] = True
-    mask = ndimage.binary_fill_holes(mask)
-    inside = ndimage.distance_transform_edt(mask)
-    return inside[pix[:, 0] - r0 + 1, pix[:, 1] - c0 + 1] > edge_px
+    return pix[:, 0] - r0 + 1, pix[:, 1] - c0 + 1, (int(h) + 2, int(w) + 2)
 
 
 def surface_regions(pixels: np.ndarray, depth_m: np.ndarray, jump_min_m: float = JUMP_MIN_M,
@@ -63,10 +69,8 @@ def surface_regions(pixels: np.ndarray, depth_m: np.ndarray, jump_min_m: float =
     n = len(pix)
     if n == 0:
         return np.zeros(0, dtype=np.int64)
-    r0, c0 = pix.min(axis=0)
-    h, w = pix.max(axis=0) - (r0, c0) + 1
-    index = np.full((h + 2, w + 2), -1, dtype=np.int64)
-    rr, cc = pix[:, 0] - r0 + 1, pix[:, 1] - c0 + 1
+    rr, cc, shape = _window(pix)
+    index = np.full(shape, -1, dtype=np.int64)
     index[rr, cc] = np.arange(n)
     src, dst = [], []
     for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):

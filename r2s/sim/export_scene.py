@@ -111,8 +111,9 @@ def build_and_write(out_dir: Path, gravity: list, support: dict, items: list[Obj
         progress(f"object {item.id}: convex decomposition", k / max(len(items), 1))
         mesh = load_mesh(item.mesh_path)
         geom = welded(mesh)
-        pieces = _checked_pieces(item, geom, params.convex) or cached_convex_decomposition(
-            _collision_geometry(item, geom), cache_dir, **params.convex.as_kwargs())
+        collision = _collision_geometry(item, geom)
+        pieces = _checked_pieces(item, collision is geom, params.convex) or \
+            cached_convex_decomposition(collision, cache_dir, **params.convex.as_kwargs())
         unit = mass_properties(geom, pieces, mass_kg=1.0)
         record = dict(label=item.label, mass_kg=item.mass_kg, friction=item.friction,
                       com=item.com, stage=item.stage, provenance=item.provenance,
@@ -135,13 +136,14 @@ def build_and_write(out_dir: Path, gravity: list, support: dict, items: list[Obj
     return bodies
 
 
-def _checked_pieces(item: ObjectItem, geom: trimesh.Trimesh, convex: ConvexParams
+def _checked_pieces(item: ObjectItem, own_geometry: bool, convex: ConvexParams
                     ) -> Optional[list[trimesh.Trimesh]]:
     """The pieces physopt checked (``item.collision_pieces_path``) when they belong to this
-    mesh and these parameters, else None."""
+    mesh and these parameters, else None. ``own_geometry``: :func:`_collision_geometry`
+    fell back to the item's own mesh."""
     if item.collision_pieces_path is None:
         return None
-    if item.collision_mesh_path is not None and _collision_geometry(item, geom) is geom:
+    if item.collision_mesh_path is not None and own_geometry:
         return None  # physopt's mesh holds other triangles: its pieces are not this mesh's
     return read_pieces(item.collision_pieces_path, convex.as_kwargs())
 

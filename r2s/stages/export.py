@@ -70,8 +70,9 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
     except StageError:
         return []
     found = [paths.gt] if source == "gt" else [paths.stage_dir(source), paths.objects]
-    if _collision_stage(paths, source):
-        found.append(paths.stage_dir(_collision_stage(paths, source)))
+    collision = _collision_stage(paths, source)
+    if collision:
+        found.append(paths.stage_dir(collision))
     if options.observation:
         found += [paths.stage_dir("init"), paths.camera, paths.depth_png, paths.depth_npy,
                   paths.masks]

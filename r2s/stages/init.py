@@ -292,11 +292,8 @@ def _fit_priors(scene: InputScene, priors: dict[int, tuple[trimesh.Trimesh, Refi
     poses = {i: pose for i, (_, pose) in priors.items()}
     ious: dict[int, float] = {}
     if o.fit_view and priors:
-        fixed = {}
-        for i, (mesh, pose, _) in shapes.items():
-            if i not in priors:
-                fixed[i] = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
-                fixed[i].apply_transform(pose)
+        fixed = {i: _posed(mesh, pose) for i, (mesh, pose, _) in shapes.items()
+                 if i not in priors}
         fo = SilhouetteFitOptions(scale_bounds=(o.fit_view_scale_min, o.fit_view_scale_max),
                                   max_evaluations=o.fit_view_evaluations)
         fits = fit_priors_to_view(priors, fixed, cam.K, cam.world_from_camera, scene.depth_m,
