@@ -180,17 +180,18 @@ def _best_split(own: np.ndarray, inside: np.ndarray, tol_m: float
 
 
 def _rebuild(own: np.ndarray, intruders: np.ndarray, tol_m: float,
-             depth: int) -> list[trimesh.Trimesh]:
+             depth: int, max_depth: int = MAX_SPLIT_DEPTH) -> list[trimesh.Trimesh]:
     """Hulls of ``own`` points, split while ``intruders`` reach into them by > tol_m (by
     :func:`_best_split`, kept only when it lowers the intrusion)."""
     planes = _hull_planes(own)
     if planes is None:
         return []
     inside = intruders[_depths(planes, intruders) > tol_m] if len(intruders) else intruders
-    if len(inside) and depth < MAX_SPLIT_DEPTH:
+    if len(inside) and depth < max_depth:
         best = _best_split(own, inside, tol_m)
         if best is not None and best[0] < _intrusion(planes, inside, tol_m):
-            return [h for part in best[1] for h in _rebuild(part, intruders, tol_m, depth + 1)]
+            return [h for part in best[1] for h in _rebuild(part, intruders, tol_m, depth + 1,
+                                                                  max_depth)]
     hull = capped_hull(own)
     return [] if hull is None else [hull]
 
@@ -212,10 +213,12 @@ def _own_points_of(piece: trimesh.Trimesh, own_surface: np.ndarray, solid) -> np
 
 
 def trim_pieces(pieces: list[trimesh.Trimesh], mesh: trimesh.Trimesh,
-                neighbour_points: np.ndarray, tol_m: float = TRIM_TOLERANCE_M
+                neighbour_points: np.ndarray, tol_m: float = TRIM_TOLERANCE_M,
+                max_split_depth: int = MAX_SPLIT_DEPTH
                 ) -> tuple[list[trimesh.Trimesh], TrimReport]:
     """Pieces of ``mesh`` that ``neighbour_points`` (M, 3; other objects' surface samples in
-    this object's frame) reach into by at most about ``tol_m`` where the visual mesh allows.
+    this object's frame) reach into by at most about ``tol_m`` where the visual mesh allows
+    (a rebuilt piece is split at most ``max_split_depth`` levels deep).
 
     Points inside the closed mesh itself (touching or interpenetrating visual meshes) are
     not trimmed against. Returns the pieces (untouched ones as given, same order, rebuilt
@@ -237,7 +240,8 @@ def trim_pieces(pieces: list[trimesh.Trimesh], mesh: trimesh.Trimesh,
         if piece_depth <= tol_m:
             out.append(piece)
             continue
-        rebuilt = _rebuild(_own_points_of(piece, own_surface, solid), pts, tol_m, 0)
+        rebuilt = _rebuild(_own_points_of(piece, own_surface, solid), pts, tol_m, 0,
+                           max_split_depth)
         out.extend(rebuilt or [piece])
     after = max([_max_depth(p, pts) for p in out] + [0.0])
     return out, TrimReport(before, after, len(pieces), len(out))
@@ -245,7 +249,8 @@ def trim_pieces(pieces: list[trimesh.Trimesh], mesh: trimesh.Trimesh,
 
 def trim_scene_pieces(pieces: dict[int, list[trimesh.Trimesh]],
                       meshes: dict[int, trimesh.Trimesh], poses: dict[int, np.ndarray],
-                      tol_m: float = TRIM_TOLERANCE_M, only: set[int] | None = None
+                      tol_m: float = TRIM_TOLERANCE_M, only: set[int] | None = None,
+                      max_split_depth: int = MAX_SPLIT_DEPTH
                       ) -> tuple[dict[int, list[trimesh.Trimesh]], dict[int, TrimReport]]:
     """:func:`trim_pieces` for every object (or those in ``only``; the others keep their
     pieces) against all the others' visual meshes.
@@ -260,5 +265,5 @@ def trim_scene_pieces(pieces: dict[int, list[trimesh.Trimesh]],
             out[i] = list(pieces[i])
             continue
         local = transform_points(np.linalg.inv(np.asarray(poses[i])), np.vstack(others))
-        out[i], reports[i] = trim_pieces(pieces[i], meshes[i], local, tol_m)
+        out[i], reports[i] = trim_pieces(pieces[i], meshes[i], local, tol_m, max_split_depth)
     return out, reports

@@ -20,7 +20,7 @@ import numpy as np
 from pydantic import Field
 
 from r2s.errors import StageError
-from r2s.geometry.collision_trim import TrimReport, trim_scene_pieces
+from r2s.geometry.collision_trim import MAX_SPLIT_DEPTH, TrimReport, trim_scene_pieces
 from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexMethod, ConvexParams
 from r2s.io.atomic import atomic_write_json
@@ -72,6 +72,9 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
                                  "into from the object's own surface "
                                  "(r2s/geometry/collision_trim.py): of completed objects, of "
                                  "all, or of none; export uses the pieces physopt checked.")
+    trim_split_levels: int = Field(MAX_SPLIT_DEPTH, ge=0, le=8, description="Most levels a trimmed piece is "
+                                   "split at its intruders (up to 2**levels pieces; "
+                                   "docs/realistic.md measured 5 on the seed demo).")
 
 
 def _source(paths: ScenePaths, options: Options, manifest: Manifest) -> str:
@@ -150,7 +153,8 @@ def _collision_pieces(ctx: StageContext, state: SceneState, meshes: dict,
     only = None if mode == "all" else {o.id for o in state.objects if o.source == "completed"}
     trimmed, reports = trim_scene_pieces(pieces, meshes,
                                          {o.id: np.asarray(o.pose) for o in state.objects},
-                                         only=only)
+                                         only=only,
+                                         max_split_depth=ctx.options.trim_split_levels)
     return _Pieces(trimmed, reports)
 
 
