@@ -439,10 +439,18 @@ def summary(rows: list[dict]) -> list[str]:
                    f"clean scenes whose gt error grew by more than 10 %: "
                    f"{sum(1 for r in clean if r['centroid_after'] is not None and r['centroid_before'] and r['centroid_after'] > 1.1 * r['centroid_before'])}"
                    f"/{len(clean)}.")
-    if unc:
-        out.append(f"Uncatalogued effect reported as unexplained structure: "
-                   f"{sum(r['unexplained'] for r in unc)}/{len(unc)}; a catalogued effect "
-                   f"applied to it: {sum(1 for r in unc if r['decision'])}/{len(unc)}.")
+    cases = list(dict.fromkeys(r["case"] for r in unc))
+    for case in cases:
+        rs = [r for r in unc if r["case"] == case]
+        name = "" if len(cases) == 1 else f" `{case}`"
+        line = (f"Uncatalogued effect{name} reported as unexplained structure: "
+                f"{sum(r['unexplained'] for r in rs)}/{len(rs)}; a catalogued effect "
+                f"applied to it: {sum(1 for r in rs if r['decision'])}/{len(rs)}")
+        if len(cases) > 1:
+            worse = sum(1 for r in rs if r["centroid_after"] is not None
+                        and r["centroid_before"] and r["centroid_after"] > 1.1 * r["centroid_before"])
+            line += f", its gt error grew by more than 10 %: {worse}/{len(rs)}"
+        out.append(line + ".")
     return out
 
 
