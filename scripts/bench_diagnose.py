@@ -60,19 +60,24 @@ CASES: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
                         ("depth_offset", "friction")),
     "row_depth": ({}, ()),
     "focal_error": ({}, ()),
+    "principal_point_error": ({}, ()),
 }
 """case -> (synth effects, the effects diagnose should name). ``row_depth`` and
-``focal_error`` are outside the catalogue (:func:`add_row_depth_error`,
-:func:`add_focal_error`, injected by this script only): diagnose should report them as
-unexplained structure and name nothing."""
+``focal_error`` and ``principal_point_error`` are outside the catalogue
+(:func:`add_row_depth_error`, :func:`add_focal_error`, :func:`add_principal_point_error`,
+injected by this script only): diagnose should report them as unexplained structure and
+name nothing."""
 
-UNCATALOGUED = {"row_depth", "focal_error"}
+UNCATALOGUED = {"row_depth", "focal_error", "principal_point_error"}
 ROW_DEPTH_ERROR_M = 0.006
 """The uncatalogued effect: depth reads long by 6 mm x (row offset from the centre,
 -1..1)^2, a gutter along the image rows."""
 FOCAL_ERROR = 0.04
 """The second uncatalogued effect: camera.json declares fx, fy (1 + 0.04) times the true
 ones (a mis-calibrated focal length); the images are the true camera's."""
+PRINCIPAL_POINT_ERROR = 0.025
+"""A third: camera.json declares cx, cy shifted by 2.5 % of the image width and height
+(8 and 6 px at 320 x 240) from the true ones."""
 
 SCENE_COUNTS = (4, 5, 6)
 """Objects per scene cycle through these with the seed (varied scenes; with 3 objects a
@@ -124,7 +129,26 @@ def add_focal_error(scene: Path, error: float = FOCAL_ERROR) -> None:
     gt_path.write_text(json.dumps(gt, indent=1))
 
 
-UNCATALOGUED_INJECT = {"row_depth": add_row_depth_error, "focal_error": add_focal_error}
+def add_principal_point_error(scene: Path, error: float = PRINCIPAL_POINT_ERROR) -> None:
+    """Inject a mis-declared principal point: input/camera.json's cx, cy shifted by
+    ``error`` times the image width and height (recorded in gt/ only)."""
+    paths = ScenePaths(scene)
+    cam_path = paths.input / "camera.json"
+    cam = json.loads(cam_path.read_text())
+    true_k = [list(r) for r in cam["K"]]
+    shift_px = [error * float(cam["width"]), error * float(cam["height"])]
+    cam["K"][0][2] = true_k[0][2] + shift_px[0]
+    cam["K"][1][2] = true_k[1][2] + shift_px[1]
+    cam_path.write_text(json.dumps(cam, indent=1))
+    gt_path = paths.gt / "scene.json"
+    gt = json.loads(gt_path.read_text())
+    gt.setdefault("injected_effects", {})["principal_point_error"] = {
+        "value": error, "shift_px": shift_px, "true_K": true_k}
+    gt_path.write_text(json.dumps(gt, indent=1))
+
+
+UNCATALOGUED_INJECT = {"row_depth": add_row_depth_error, "focal_error": add_focal_error,
+                       "principal_point_error": add_principal_point_error}
 """case -> the function that injects it into a synthesised scene."""
 
 
