@@ -34,6 +34,7 @@ from r2s.physopt.hierarchy import (descendants, lowest_points_m, order_root_to_l
                                    parents_from_graph)
 from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, seen_poses
 from r2s.physopt.params import initial_params, keep_previous
+from r2s.physopt.piece_overlap import OverlapShave, shave_overlaps
 from r2s.physopt.solve import physopt_provenance, solve_scene
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
 from r2s.physical.provenance import user_entries
@@ -72,6 +73,11 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
                                  "into from the object's own surface "
                                  "(r2s/geometry/collision_trim.py): of completed objects, of "
                                  "all, or of none; export uses the pieces physopt checked.")
+    shave_overlaps: bool = Field(
+        True, description="Cut the convex pieces of an object where they overlap the pieces of "
+                          "an object it rests on or beside (the later one in the support order) "
+                          "or reach below the table, so the depenetration does not push it off "
+                          "where it was seen (r2s/physopt/piece_overlap.py).")
     trim_split_levels: int = Field(MAX_SPLIT_DEPTH, ge=0, le=8, description="Most levels a trimmed piece is "
                                    "split at its intruders (up to 2**levels pieces; "
                                    "docs/realistic.md measured 5 on the seed demo).")
@@ -98,15 +104,16 @@ def run(ctx: StageContext) -> dict:
     state = corrected_state(read_state(paths.stage_dir(src)), ctx.manifest.model)
     meshes = {o.id: welded(load_mesh(paths.stage_dir(src) / o.mesh)) for o in state.objects}
     convex = ConvexParams(opt.convex_threshold, opt.max_convex_pieces, opt.convex_method)
-    pieces = _collision_pieces(ctx, state, meshes, convex)
-    params = initial_params(state, meshes, pieces.pieces, opt.density_kg_m3, opt.mass_bounds,
-                            opt.friction_init, user_entries(paths.root))
     parents = parents_from_graph(paths.contact_graph)
     order = order_root_to_leaves([o.id for o in state.objects], parents,
                                  lowest_points_m(state.objects, meshes))
+    pieces = _collision_pieces(ctx, state, meshes, convex, order)
+    params = initial_params(state, meshes, pieces.pieces, opt.density_kg_m3, opt.mass_bounds,
+                            opt.friction_init, user_entries(paths.root))
     log: dict = {"source": src, "order": order, "parents": parents,
                  "objects": {i: [] for i in order}, "rounds": [],
-                 "collision_trim": _trim_log(pieces.reports)}
+                 "collision_trim": _trim_log(pieces.reports),
+                 "collision_shave": _shave_log(pieces.shaved)}
     if opt.only is not None:
         if opt.only not in params:
             raise StageError(f"physopt only={opt.only}: no object {opt.only} "
@@ -136,10 +143,25 @@ class _Pieces:
 
     pieces: dict[int, list]
     reports: dict[int, TrimReport]
+    shaved: dict[int, OverlapShave]
 
 
 def _collision_pieces(ctx: StageContext, state: SceneState, meshes: dict,
-                      convex: ConvexParams) -> _Pieces:
+                      convex: ConvexParams, order: list[int]) -> _Pieces:
+    """Each object's convex decomposition (cached), trimmed where neighbours reach in, then
+    cut where pieces of two objects still overlap (``order``: root to leaves)."""
+    trimmed = _trimmed_pieces(ctx, state, meshes, convex)
+    if not ctx.options.shave_overlaps:
+        return trimmed
+    ctx.progress("collision pieces cut where they overlap", 0.15)
+    poses = {o.id: np.asarray(o.pose) for o in state.objects}
+    support = (np.asarray(state.support.point), np.asarray(state.support.normal))
+    cut, shaved = shave_overlaps(trimmed.pieces, meshes, poses, order, support)
+    return _Pieces(cut, trimmed.reports, shaved)
+
+
+def _trimmed_pieces(ctx: StageContext, state: SceneState, meshes: dict,
+                    convex: ConvexParams) -> _Pieces:
     """Each object's convex decomposition (cached), trimmed where neighbours reach in."""
     pieces = {}
     for k, o in enumerate(state.objects):
@@ -148,14 +170,14 @@ def _collision_pieces(ctx: StageContext, state: SceneState, meshes: dict,
                                                    **convex.as_kwargs())
     mode = ctx.options.trim_collision
     if mode == "off":
-        return _Pieces(pieces, {})
+        return _Pieces(pieces, {}, {})
     ctx.progress("collision pieces against the neighbours", 0.1)
     only = None if mode == "all" else {o.id for o in state.objects if o.source == "completed"}
     trimmed, reports = trim_scene_pieces(pieces, meshes,
                                          {o.id: np.asarray(o.pose) for o in state.objects},
                                          only=only,
                                          max_split_depth=ctx.options.trim_split_levels)
-    return _Pieces(trimmed, reports)
+    return _Pieces(trimmed, reports, {})
 
 
 def _trim_log(reports: dict[int, TrimReport]) -> dict[str, dict]:
@@ -165,6 +187,14 @@ def _trim_log(reports: dict[int, TrimReport]) -> dict[str, dict]:
                      "pieces_before": r.pieces_before, "pieces_after": r.pieces_after}
             for i, r in sorted(reports.items()) if r.pieces_before != r.pieces_after
             or r.depth_before_m != r.depth_after_m}
+
+
+def _shave_log(shaved: dict[int, OverlapShave]) -> dict[str, dict]:
+    """physopt/log.json's record of the objects whose pieces were cut (depths in mm, as
+    Bullet reports them, its margins included)."""
+    return {str(i): {"overlap_before_mm": round(1000 * r.depth_before_m, 2),
+                     "overlap_after_mm": round(1000 * r.depth_after_m, 2),
+                     "cuts": r.cuts} for i, r in sorted(shaved.items())}
 
 
 def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, final: dict,

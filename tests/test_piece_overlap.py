@@ -1,0 +1,90 @@
+"""physopt's cut of overlapping collision pieces (r2s/physopt/piece_overlap.py), against
+boxes whose overlap and cut are known exactly."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from r2s.physopt.piece_overlap import (BELOW_SUPPORT_M, CUT_CLEARANCE_M, piece_overlaps,
+                                       shave_overlaps)
+
+
+def _box(size_m, centre_m=(0.0, 0.0, 0.0)):
+    return trimesh.creation.box(extents=size_m,
+                                transform=trimesh.transformations.translation_matrix(centre_m))
+
+
+def _pose(translation_m):
+    pose = np.eye(4)
+    pose[:3, 3] = translation_m
+    return pose
+
+
+def _plate_and_cube():
+    """A: a 10 x 10 x 4 cm piece on the table whose visual mesh is 5 mm lower (the piece
+    overshoots its mesh, as a convex piece spanning a plate's dish does); B: a 4 cm cube
+    resting on A's visual mesh, so 5 mm inside A's piece."""
+    pieces = {1: [_box([0.10, 0.10, 0.04])], 2: [_box([0.04, 0.04, 0.04])]}
+    meshes = {1: _box([0.10, 0.10, 0.035], [0.0, 0.0, -0.0025]), 2: _box([0.04, 0.04, 0.04])}
+    poses = {1: _pose([0.0, 0.0, 0.02]), 2: _pose([0.01, 0.0, 0.035 + 0.02])}
+    return pieces, meshes, poses
+
+
+def test_later_piece_cut_at_the_earlier_ones_top():
+    pieces, meshes, poses = _plate_and_cube()
+    overlaps = piece_overlaps(pieces, poses)
+    assert len(overlaps) == 1
+    # Bullet adds its margins (about 1 mm per hull) to the 5 mm the pieces share
+    assert overlaps[0].depth_m == pytest.approx(0.005 + 2e-3, abs=2e-4)
+
+    out, report = shave_overlaps(pieces, meshes, poses, order=[1, 2])
+    assert out[1][0] is pieces[1][0]                      # the earlier object is never cut
+    lowest = out[2][0].vertices[:, 2].min() + poses[2][2, 3]
+    assert lowest == pytest.approx(0.04 + CUT_CLEARANCE_M, abs=1e-6)
+    # the cut removes exactly the slab below that level: 4 x 4 cm x (5 + 1) mm
+    removed = pieces[2][0].volume - out[2][0].volume
+    assert removed == pytest.approx(0.04 * 0.04 * (0.005 + CUT_CLEARANCE_M), rel=1e-6)
+    assert report[2].depth_before_m > 4e-3 and report[2].depth_after_m == 0.0
+    assert not piece_overlaps(out, poses)                 # nothing for depenetration to push
+
+
+def test_order_decides_which_piece_is_cut():
+    pieces, meshes, poses = _plate_and_cube()
+    out, report = shave_overlaps(pieces, meshes, poses, order=[2, 1])
+    assert out[2][0] is pieces[2][0] and set(report) == {1}
+    # A is cut from B's bottom (z = 0.035) down by the clearance
+    assert out[1][0].vertices[:, 2].max() + poses[1][2, 3] == pytest.approx(
+        0.035 - CUT_CLEARANCE_M, abs=1e-6)
+
+
+def test_visual_meshes_that_interpenetrate_are_left_to_depenetration():
+    # the visual meshes are the pieces: B is really sunk 5 mm into A (and A 3 mm into
+    # the table), which the depenetration must lift, not a cut hide
+    pieces = {1: [_box([0.10, 0.10, 0.04])], 2: [_box([0.04, 0.04, 0.04])]}
+    meshes = {1: pieces[1][0], 2: pieces[2][0]}
+    poses = {1: _pose([0.0, 0.0, 0.02 - 0.003]), 2: _pose([0.0, 0.0, 0.04 + 0.02 - 0.008])}
+    support = (np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    out, report = shave_overlaps(pieces, meshes, poses, order=[1, 2], support=support)
+    assert out[1][0] is pieces[1][0] and out[2][0] is pieces[2][0] and report == {}
+
+
+def test_piece_below_the_table_cut_at_the_table_and_others_untouched():
+    # piece 1 overshoots its visual mesh by 3 mm below the table; piece 2 by less than
+    # the allowance
+    pieces = {1: [_box([0.05, 0.05, 0.05])], 2: [_box([0.05, 0.05, 0.05])]}
+    meshes = {1: _box([0.05, 0.05, 0.047], [0.0, 0.0, 0.0015]), 2: _box([0.05, 0.05, 0.05])}
+    poses = {1: _pose([0.0, 0.0, 0.025 - 0.003]),
+             2: _pose([0.2, 0.0, 0.025 - 0.5 * BELOW_SUPPORT_M])}
+    support = (np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    out, _ = shave_overlaps(pieces, meshes, poses, order=[1, 2], support=support)
+    assert out[1][0].vertices[:, 2].min() + poses[1][2, 3] == pytest.approx(0.0, abs=1e-9)
+    assert out[1][0].volume == pytest.approx(0.05 * 0.05 * 0.047, rel=1e-6)
+    assert out[2][0] is pieces[2][0]
+
+
+def test_apart_pieces_are_returned_as_given():
+    pieces = {1: [_box([0.05, 0.05, 0.05])], 2: [_box([0.05, 0.05, 0.05])]}
+    poses = {1: _pose([0.0, 0.0, 0.025]), 2: _pose([0.0505, 0.0, 0.025])}  # 0.5 mm apart
+    out, report = shave_overlaps(pieces, {1: pieces[1][0], 2: pieces[2][0]}, poses,
+                                 order=[1, 2])
+    assert out[1][0] is pieces[1][0] and out[2][0] is pieces[2][0] and report == {}
