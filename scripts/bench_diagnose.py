@@ -59,15 +59,25 @@ CASES: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
     "offset+friction": ({"depth_offset_m": "0.01", "friction": "0.3"},
                         ("depth_offset", "friction")),
     "row_depth": ({}, ()),
+    "focal_error": ({}, ()),
+    "principal_point_error": ({}, ()),
 }
-"""case -> (synth effects, the effects diagnose should name). ``row_depth`` is outside the
-catalogue (:func:`add_row_depth_error`, injected by this script only): diagnose should
-report it as unexplained structure and name nothing."""
+"""case -> (synth effects, the effects diagnose should name). ``row_depth`` and
+``focal_error`` and ``principal_point_error`` are outside the catalogue
+(:func:`add_row_depth_error`, :func:`add_focal_error`, :func:`add_principal_point_error`,
+injected by this script only): diagnose should report them as unexplained structure and
+name nothing."""
 
-UNCATALOGUED = {"row_depth"}
+UNCATALOGUED = {"row_depth", "focal_error", "principal_point_error"}
 ROW_DEPTH_ERROR_M = 0.006
 """The uncatalogued effect: depth reads long by 6 mm x (row offset from the centre,
 -1..1)^2, a gutter along the image rows."""
+FOCAL_ERROR = 0.04
+"""The second uncatalogued effect: camera.json declares fx, fy (1 + 0.04) times the true
+ones (a mis-calibrated focal length); the images are the true camera's."""
+PRINCIPAL_POINT_ERROR = 0.025
+"""A third: camera.json declares cx, cy shifted by 2.5 % of the image width and height
+(8 and 6 px at 320 x 240) from the true ones."""
 
 SCENE_COUNTS = (4, 5, 6)
 """Objects per scene cycle through these with the seed (varied scenes; with 3 objects a
@@ -103,6 +113,45 @@ def add_row_depth_error(scene: Path, error_m: float = ROW_DEPTH_ERROR_M) -> None
     gt_path.write_text(json.dumps(gt, indent=1))
 
 
+def add_focal_error(scene: Path, error: float = FOCAL_ERROR) -> None:
+    """Inject the mis-declared focal length: input/camera.json's fx, fy become (1 + error)
+    times the true ones (recorded in gt/ only; gt/scene.json's camera keeps the true K)."""
+    paths = ScenePaths(scene)
+    cam_path = paths.input / "camera.json"
+    cam = json.loads(cam_path.read_text())
+    true_k = [list(r) for r in cam["K"]]
+    cam["K"][0][0] = true_k[0][0] * (1.0 + error)
+    cam["K"][1][1] = true_k[1][1] * (1.0 + error)
+    cam_path.write_text(json.dumps(cam, indent=1))
+    gt_path = paths.gt / "scene.json"
+    gt = json.loads(gt_path.read_text())
+    gt.setdefault("injected_effects", {})["focal_error"] = {"value": error, "true_K": true_k}
+    gt_path.write_text(json.dumps(gt, indent=1))
+
+
+def add_principal_point_error(scene: Path, error: float = PRINCIPAL_POINT_ERROR) -> None:
+    """Inject a mis-declared principal point: input/camera.json's cx, cy shifted by
+    ``error`` times the image width and height (recorded in gt/ only)."""
+    paths = ScenePaths(scene)
+    cam_path = paths.input / "camera.json"
+    cam = json.loads(cam_path.read_text())
+    true_k = [list(r) for r in cam["K"]]
+    shift_px = [error * float(cam["width"]), error * float(cam["height"])]
+    cam["K"][0][2] = true_k[0][2] + shift_px[0]
+    cam["K"][1][2] = true_k[1][2] + shift_px[1]
+    cam_path.write_text(json.dumps(cam, indent=1))
+    gt_path = paths.gt / "scene.json"
+    gt = json.loads(gt_path.read_text())
+    gt.setdefault("injected_effects", {})["principal_point_error"] = {
+        "value": error, "shift_px": shift_px, "true_K": true_k}
+    gt_path.write_text(json.dumps(gt, indent=1))
+
+
+UNCATALOGUED_INJECT = {"row_depth": add_row_depth_error, "focal_error": add_focal_error,
+                       "principal_point_error": add_principal_point_error}
+"""case -> the function that injects it into a synthesised scene."""
+
+
 def make_scene(root: Path, case: str, seed: int, count: int, size: tuple[int, int]) -> Path:
     import shutil
 
@@ -118,7 +167,7 @@ def make_scene(root: Path, case: str, seed: int, count: int, size: tuple[int, in
         synthesize(scene, SynthOptions(objects="ycb", count=n, seed=1000 * (k + 1) + seed,
                                        effects=CASES[case][0], width=size[0], height=size[1]))
         if case in UNCATALOGUED:
-            add_row_depth_error(scene)
+            UNCATALOGUED_INJECT[case](scene)
         print(f"synth {scene.name} (seed {1000 * (k + 1) + seed}): "
               f"{time.perf_counter() - t0:.0f} s", flush=True)
         if case == "com_offset" and not com_offset_observable(scene):
@@ -414,10 +463,18 @@ def summary(rows: list[dict]) -> list[str]:
                    f"clean scenes whose gt error grew by more than 10 %: "
                    f"{sum(1 for r in clean if r['centroid_after'] is not None and r['centroid_before'] and r['centroid_after'] > 1.1 * r['centroid_before'])}"
                    f"/{len(clean)}.")
-    if unc:
-        out.append(f"Uncatalogued effect reported as unexplained structure: "
-                   f"{sum(r['unexplained'] for r in unc)}/{len(unc)}; a catalogued effect "
-                   f"applied to it: {sum(1 for r in unc if r['decision'])}/{len(unc)}.")
+    cases = list(dict.fromkeys(r["case"] for r in unc))
+    for case in cases:
+        rs = [r for r in unc if r["case"] == case]
+        name = "" if len(cases) == 1 else f" `{case}`"
+        line = (f"Uncatalogued effect{name} reported as unexplained structure: "
+                f"{sum(r['unexplained'] for r in rs)}/{len(rs)}; a catalogued effect "
+                f"applied to it: {sum(1 for r in rs if r['decision'])}/{len(rs)}")
+        if len(cases) > 1:
+            worse = sum(1 for r in rs if r["centroid_after"] is not None
+                        and r["centroid_before"] and r["centroid_after"] > 1.1 * r["centroid_before"])
+            line += f", its gt error grew by more than 10 %: {worse}/{len(rs)}"
+        out.append(line + ".")
     return out
 
 

@@ -23,6 +23,7 @@ unbiased sensor, the depth scale for a biased one.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 import open3d as o3d
@@ -45,6 +46,9 @@ class ScaleFit:
     fitness: float
     rmse_m: float
     n_points: int
+    log_scale_axes: tuple = (0.0, 0.0, 0.0)
+    """Log scale of the prior per camera axis (x, y across the view, z along the optical
+    axis); all three are ``log(scale)`` unless the fit's ``axes`` freed them."""
 
 
 EDGE_ALLOWANCE_PX = 0.5
@@ -231,17 +235,24 @@ def _subsample(points: np.ndarray, count: int, seed: int) -> np.ndarray:
 
 
 def _cam_from_obj(rot: np.ndarray, trans: np.ndarray, centre: np.ndarray,
-                  log_s: float) -> np.ndarray:
-    """(4, 4) similarity taking model points to the camera frame (inverse of the fit map)."""
-    s = np.exp(log_s)
+                  log_s: np.ndarray) -> np.ndarray:
+    """(4, 4) map taking model points to the camera frame (inverse of the fit map);
+    ``log_s``: the log scale, one value or one per camera axis (3,)."""
+    log_s = np.broadcast_to(np.asarray(log_s, dtype=np.float64), (3,))
     out = np.eye(4)
-    out[:3, :3] = s * rot.T
-    out[:3, 3] = centre - s * rot.T @ trans
+    if np.all(log_s == log_s[0]):  # one scale: a similarity
+        s = float(np.exp(log_s[0]))
+        out[:3, :3] = s * rot.T
+        out[:3, 3] = centre - s * rot.T @ trans
+        return out
+    s3 = np.exp(log_s)
+    out[:3, :3] = s3[:, None] * rot.T
+    out[:3, 3] = centre - s3 * (rot.T @ trans)
     return out
 
 
 def _with_free_space(model: "SurfaceModel", view: FreeSpace, rot: np.ndarray,
-                     trans: np.ndarray, centre: np.ndarray, log_s: float, pairs: tuple,
+                     trans: np.ndarray, centre: np.ndarray, log_s: np.ndarray, pairs: tuple,
                      weight: float, max_px: float) -> tuple:
     """Append the silhouette pairs to the (y, q, u, e, w) correspondence arrays."""
     target_cam, m = _silhouette_pairs(model, _cam_from_obj(rot, trans, centre, log_s), view,
@@ -260,23 +271,91 @@ def _with_free_space(model: "SurfaceModel", view: FreeSpace, rot: np.ndarray,
             np.concatenate([eo, dist]), np.concatenate([wo, np.full(len(dist), weight)]))
 
 
+SCALE_AXES = {"isotropic": ((0, 1, 2),), "across_along": ((0, 1), (2,))}
+"""How the camera axes share scale parameters: one scale for all three, or one across
+the view (x, y) and one along the optical axis (z)."""
+
+
+@dataclass
+class _Pose:
+    """The fit's state: model point = rot diag(exp(-log_s)) (camera point - centre) + trans."""
+
+    rot: np.ndarray
+    trans: np.ndarray
+    log_s: np.ndarray
+
+
+def _gauss_newton_step(model: SurfaceModel, p: np.ndarray, p_cam: np.ndarray,
+                       centre: np.ndarray, pose: _Pose, max_d: float, groups: tuple,
+                       fit_rotation: bool, view: FreeSpace | None,
+                       free_space_weight: float) -> Optional[np.ndarray]:
+    """One damped, Huber-weighted Gauss-Newton step of the free-scale ICP (updates
+    ``pose`` in place); returns the step (rotation, translation, scales; the rotation part
+    zero when held), None when too few correspondences are left."""
+    n_par = (6 if fit_rotation else 3) + len(groups)
+    q = p * np.exp(-pose.log_s)
+    y = q @ pose.rot.T + pose.trans
+    c, nf = model.closest(y)
+    d = y - c
+    dist = np.linalg.norm(d, axis=1)
+    ok = dist < max_d
+    if ok.sum() < max(10, n_par + 1):
+        return None
+    u = np.where(dist[:, None] > 1e-6, d / np.maximum(dist, 1e-12)[:, None], nf)[ok]
+    yo, qo = y[ok], q[ok]
+    e = np.einsum("ij,ij->i", u, d[ok])
+    delta = max_d / 3.0
+    w = np.where(np.abs(e) <= delta, 1.0, delta / np.maximum(np.abs(e), 1e-12))
+    if view is not None:
+        max_px = max_d * view.K[0, 0] / max(float(np.median(p_cam[:, 2])), 1e-3)
+        yo, qo, u, e, w = _with_free_space(model, view, pose.rot, pose.trans, centre,
+                                           pose.log_s, (yo, qo, u, e, w), free_space_weight,
+                                           max_px)
+    cols = ([np.cross(yo, u)] if fit_rotation else []) + [u]
+    if groups:
+        if len(groups) == 1:
+            cols.append(-np.einsum("ij,ij->i", u, qo @ pose.rot.T)[:, None])
+        else:
+            d_axis = -(u @ pose.rot) * qo  # d e / d log_s per camera axis
+            cols += [d_axis[:, list(g)].sum(axis=1)[:, None] for g in groups]
+    J = np.hstack(cols)
+    A = J.T @ (J * w[:, None])
+    A += 1e-3 * np.diag(np.diag(A)) + 1e-12 * np.eye(n_par)  # Levenberg damping
+    x = -np.linalg.solve(A, J.T @ (w * e))
+    if not fit_rotation:
+        x = np.concatenate([np.zeros(3), x])
+    x *= min(1.0, MAX_STEP / max(np.abs(x[:3]).max(), 0.1 * np.abs(x[3:6]).max() / max_d,
+                                 np.abs(x[6:]).max() if groups else 0.0, 1e-12))
+    dR = Rotation.from_rotvec(x[:3]).as_matrix()
+    pose.rot = dR @ pose.rot
+    pose.trans = dR @ pose.trans + x[3:6]
+    for g, step in zip(groups, x[6:]):
+        pose.log_s[list(g)] = np.clip(pose.log_s[list(g)] + step, *LOG_SCALE_BOUNDS)
+    return x
+
+
 def fit_prior_scale(model: SurfaceModel, points_camera: np.ndarray,
                     object_from_camera: np.ndarray,
                     schedule_m: tuple[float, ...] = (0.02, 0.01, 0.005, 0.003),
                     iterations_per_level: int = 10, inlier_m: float = 0.003,
                     max_points: int = 1500, fit_scale: bool = True, seed: int = 0,
-                    view: FreeSpace | None = None, free_space_weight: float = 1.0) -> ScaleFit:
+                    view: FreeSpace | None = None, free_space_weight: float = 1.0,
+                    axes: str = "isotropic", fit_rotation: bool = True) -> ScaleFit:
     """Fit pose and scale of a model to observed points.
 
     Parameters
     ----------
     model : the prior's surface, object frame (metric).
     points_camera : (N, 3) observed points, camera frame (the camera centre is the origin).
-    object_from_camera : (4, 4) initial pose.
+    object_from_camera : (4, 4) initial pose: a rotation, or a rotation times one scale
+        (the fit then starts from that scale).
     schedule_m : correspondence distances, coarse to fine.
-    fit_scale : False holds the scale at 1 (a rigid fit).
+    fit_scale : False holds the scale at its start (a rigid fit).
     view : the instance's :class:`FreeSpace` (the silhouette term), or None.
     free_space_weight : weight of a silhouette pair relative to an observed point.
+    axes : a key of :data:`SCALE_AXES`; "across_along" fits one scale across the view and
+        one along the optical axis (``ScaleFit.log_scale_axes``), about the points' centroid.
+    fit_rotation : False holds the rotation at its start (translation and scale free).
 
     Returns
     -------
@@ -287,56 +366,38 @@ def fit_prior_scale(model: SurfaceModel, points_camera: np.ndarray,
     # translation are nearly independent; the fitted scale is the same
     centre = p_cam.mean(axis=0)
     p = p_cam - centre
-    rot = np.asarray(object_from_camera, dtype=np.float64)[:3, :3].copy()
-    trans = np.asarray(object_from_camera, dtype=np.float64)[:3, 3].copy() + rot @ centre
-    log_s = 0.0
+    start = np.asarray(object_from_camera, dtype=np.float64)
+    start_log_s = -float(np.log(np.cbrt(abs(np.linalg.det(start[:3, :3])))))
+    start_log_s = 0.0 if abs(start_log_s) < 1e-9 else start_log_s  # a rotation
+    rot = start[:3, :3] * np.exp(start_log_s)
+    pose = _Pose(rot.copy(), start[:3, 3] + start[:3, :3] @ centre, np.full(3, start_log_s))
     for level, max_d in enumerate(schedule_m):
         # the coarse levels align rigidly; the scale is freed once the pose is close
         with_scale = fit_scale and level >= len(schedule_m) // 2
-        n_par = 7 if with_scale else 6
         for _ in range(iterations_per_level):
-            q = p * np.exp(-log_s)
-            y = q @ rot.T + trans
-            c, nf = model.closest(y)
-            d = y - c
-            dist = np.linalg.norm(d, axis=1)
-            ok = dist < max_d
-            if ok.sum() < max(10, n_par + 1):
+            x = _gauss_newton_step(model, p, p_cam, centre, pose, max_d,
+                                   SCALE_AXES[axes] if with_scale else (), fit_rotation,
+                                   view, free_space_weight)
+            if x is None or np.abs(x).max() < 1e-7:
                 break
-            u = np.where(dist[:, None] > 1e-6, d / np.maximum(dist, 1e-12)[:, None], nf)[ok]
-            yo, qo = y[ok], q[ok]
-            e = np.einsum("ij,ij->i", u, d[ok])
-            delta = max_d / 3.0
-            w = np.where(np.abs(e) <= delta, 1.0, delta / np.maximum(np.abs(e), 1e-12))
-            if view is not None:
-                max_px = max_d * view.K[0, 0] / max(float(np.median(p_cam[:, 2])), 1e-3)
-                yo, qo, u, e, w = _with_free_space(model, view, rot, trans, centre, log_s,
-                                                   (yo, qo, u, e, w), free_space_weight, max_px)
-            cols = [np.cross(yo, u), u]
-            if with_scale:
-                cols.append(-np.einsum("ij,ij->i", u, qo @ rot.T)[:, None])
-            J = np.hstack(cols)
-            A = J.T @ (J * w[:, None])
-            A += 1e-3 * np.diag(np.diag(A)) + 1e-12 * np.eye(n_par)  # Levenberg damping
-            x = -np.linalg.solve(A, J.T @ (w * e))
-            x *= min(1.0, MAX_STEP / max(np.abs(x[:3]).max(), 0.1 * np.abs(x[3:6]).max() / max_d,
-                                         np.abs(x[6:]).max() if with_scale else 0.0, 1e-12))
-            dR = Rotation.from_rotvec(x[:3]).as_matrix()
-            rot = dR @ rot
-            trans = dR @ trans + x[3:6]
-            if with_scale:
-                log_s = float(np.clip(log_s + x[6], *LOG_SCALE_BOUNDS))
-            if np.abs(x).max() < 1e-7:
-                break
+    return _scale_fit(model, p, centre, pose, inlier_m)
+
+
+def _scale_fit(model: SurfaceModel, p: np.ndarray, centre: np.ndarray, pose: _Pose,
+               inlier_m: float) -> ScaleFit:
+    """The :class:`ScaleFit` of a converged pose (fitness and RMSE in observation units)."""
+    log_s = pose.log_s
     q = p * np.exp(-log_s)
-    y = q @ rot.T + trans
+    y = q @ pose.rot.T + pose.trans
     c, _ = model.closest(y)
-    dist = np.linalg.norm(y - c, axis=1) * np.exp(log_s)  # back to observation units
+    mean_log_s = float(log_s[0] if np.all(log_s == log_s[0]) else np.mean(log_s))
+    dist = np.linalg.norm(y - c, axis=1) * np.exp(mean_log_s)  # back to observation units
     inl = dist < inlier_m
-    pose = np.eye(4)
-    # y = R (p_cam - centre) / s + trans, as one (4, 4) similarity
-    pose[:3, :3], pose[:3, 3] = rot * np.exp(-log_s), trans - rot @ centre * np.exp(-log_s)
-    return ScaleFit(scale=float(np.exp(log_s)), object_from_camera=pose,
+    out = np.eye(4)
+    # y = R diag(exp(-log_s)) (p_cam - centre) + trans, as one (4, 4) map
+    out[:3, :3] = pose.rot * np.exp(-log_s)
+    out[:3, 3] = pose.trans - pose.rot @ (centre * np.exp(-log_s))
+    return ScaleFit(scale=float(np.exp(mean_log_s)), object_from_camera=out,
                     fitness=float(inl.mean()) if len(inl) else 0.0,
                     rmse_m=float(np.sqrt(np.mean(dist[inl] ** 2))) if inl.any() else float("nan"),
-                    n_points=int(len(p)))
+                    n_points=int(len(p)), log_scale_axes=tuple(float(v) for v in log_s))
