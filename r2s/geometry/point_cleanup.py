@@ -6,7 +6,7 @@ its depth edges. Completion turns every kept point into material, so a few forei
 stretch the footprint far past the object. Two tests, on the mask's pixels:
 
 - *support band*: points within ``plane_band_m`` of the support plane, on the mask's outer
-  ``edge_px`` ring, are the table (bleed reaches into a mask from its outline; the
+  ``edge_px`` ring where it borders no other object's mask, are the table (bleed reaches into a mask from its outline; the
   object's own base is restored by the extrusion down to the support); skipped when too
   few points would remain (a flat object lying on the table). Such points deeper inside
   the mask are kept: table seen *through* an object's mask is cut off from the table
@@ -16,8 +16,10 @@ stretch the footprint far past the object. Two tests, on the mask's pixels:
   depths differ by less than ``max(jump_min_m, jump_fraction * z)`` (a surface seen even
   at a grazing angle changes depth smoothly from pixel to pixel; bleed onto something
   nearer or farther sits across a depth jump). Linked regions smaller than
-  ``min_region_fraction`` of the largest are dropped (the largest region and any region
-  nearly as large, e.g. an object cut in two by a thin occluder, are kept).
+  ``min_region_fraction`` of the largest in the same part of the mask are dropped (the
+  largest region and any region nearly as large are kept); a part of the mask cut off
+  from the rest by an occluder (a plate's far rim seen between an apple and a banana) is
+  compared only with itself, since bleed grows into a mask from its outline.
 """
 
 from __future__ import annotations
@@ -36,26 +38,54 @@ MIN_REGION_FRACTION = 0.25
 MIN_KEEP_FRACTION = 0.3
 
 
-def interior_pixels(pixels: np.ndarray, edge_px: int) -> np.ndarray:
+def interior_pixels(pixels: np.ndarray, edge_px: int,
+                    neighbours: np.ndarray | None = None) -> np.ndarray:
     """(N,) bool: which of the mask pixels ``pixels`` ((N, 2) int (row, col), distinct) lie
     more than ``edge_px`` pixels (Euclidean) inside the mask's outline. Holes in the pixel
-    set (no depth reading) are filled first, so a hole does not make an outline."""
+    set (no depth reading) are filled first, so a hole does not make an outline; where
+    ``neighbours`` ((M, 2) pixels of the other objects' masks) border the mask there is no
+    outline either (bleed onto the table comes in from where the table is seen)."""
     pix = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
     if len(pix) == 0:
         return np.zeros(0, dtype=bool)
-    rr, cc, shape = _window(pix)
+    pad = min(int(edge_px), 32) + 1  # neighbours this close to the mask count
+    rr, cc, shape = _window(pix, pad)
     mask = np.zeros(shape, dtype=bool)
     mask[rr, cc] = True
-    inside = ndimage.distance_transform_edt(ndimage.binary_fill_holes(mask))
+    solid = ndimage.binary_fill_holes(mask)
+    if neighbours is not None and len(neighbours):
+        other = np.asarray(neighbours, dtype=np.int64).reshape(-1, 2)
+        other = other - pix.min(axis=0) + pad  # into the window
+        ok = np.all((other >= 0) & (other < shape), axis=1)
+        solid[other[ok, 0], other[ok, 1]] = True
+    inside = ndimage.distance_transform_edt(solid)
     return inside[rr, cc] > edge_px
 
 
-def _window(pix: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
-    """Rows and columns of the (N, 2) pixels in their bounding box grown by one pixel on
-    every side, and that window's shape."""
+def _window(pix: np.ndarray, pad: int = 1) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """Rows and columns of the (N, 2) pixels in their bounding box grown by ``pad`` pixels
+    on every side, and that window's shape."""
     r0, c0 = pix.min(axis=0)
     h, w = pix.max(axis=0) - (r0, c0) + 1
-    return pix[:, 0] - r0 + 1, pix[:, 1] - c0 + 1, (int(h) + 2, int(w) + 2)
+    return pix[:, 0] - r0 + pad, pix[:, 1] - c0 + pad, (int(h) + 2 * pad, int(w) + 2 * pad)
+
+
+PART_GAP_PX = 2
+"""Mask pixels closer than twice this (a depth hole, a thin occluder) are one part."""
+
+
+def mask_parts(pixels: np.ndarray, gap_px: int = PART_GAP_PX) -> np.ndarray:
+    """(N,) int part label of each of the (N, 2) mask pixels: the connected parts of the
+    mask once gaps narrower than ``2 * gap_px`` pixels are closed."""
+    pix = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
+    if len(pix) == 0:
+        return np.zeros(0, dtype=np.int64)
+    rr, cc, shape = _window(pix, gap_px + 1)
+    mask = np.zeros(shape, dtype=bool)
+    mask[rr, cc] = True
+    grown = ndimage.binary_dilation(mask, iterations=gap_px) if gap_px > 0 else mask
+    labels, _ = ndimage.label(grown, np.ones((3, 3), dtype=bool))
+    return labels[rr, cc].astype(np.int64) - 1
 
 
 def surface_regions(pixels: np.ndarray, depth_m: np.ndarray, jump_min_m: float = JUMP_MIN_M,
@@ -91,13 +121,16 @@ def object_point_mask(points_world: np.ndarray, pixels: np.ndarray, depth_m: np.
                       plane_band_m: float = PLANE_BAND_M,
                       min_region_fraction: float = MIN_REGION_FRACTION,
                       min_keep_fraction: float = MIN_KEEP_FRACTION,
-                      edge_px: int = EDGE_PX) -> np.ndarray:
+                      edge_px: int = EDGE_PX, neighbour_pixels: np.ndarray | None = None
+                      ) -> np.ndarray:
     """(N,) bool: which of an instance's observed points belong to the object.
 
     points_world : (N, 3) back-projected mask pixels; pixels : (N, 2) their (row, col);
     depth_m : (N,) their observed depths; plane_point, plane_normal : the support plane
-    (normal up). At least ``min_keep_fraction`` of the points (and 10) are always kept:
-    when a test would drop more it is skipped.
+    (normal up); neighbour_pixels : (M, 2) the other objects' mask pixels (the support
+    band's ring runs only where the mask borders no other object). At least
+    ``min_keep_fraction`` of the points (and 10) are always kept: when a test would drop
+    more it is skipped.
     """
     pts = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
     n = len(pts)
@@ -106,14 +139,18 @@ def object_point_mask(points_world: np.ndarray, pixels: np.ndarray, depth_m: np.
     if n == 0:
         return keep
     above = signed_distance(pts, plane_point, plane_normal) > plane_band_m
-    above |= interior_pixels(pixels, edge_px)
+    above |= interior_pixels(pixels, edge_px, neighbour_pixels)
     if np.count_nonzero(keep & above) >= floor:
         keep &= above
     idx = np.flatnonzero(keep)
     labels = surface_regions(np.asarray(pixels)[idx], np.asarray(depth_m)[idx])
     sizes = np.bincount(labels)
-    big = sizes >= min_region_fraction * sizes.max()
-    region_keep = big[labels]
+    # compared within each part of the mask: a part cut off by an occluder is the object
+    # seen past it, not bleed (bleed grows into a mask from its outline)
+    part = mask_parts(np.asarray(pixels)[idx])
+    largest = np.zeros(part.max() + 1, dtype=np.int64)
+    np.maximum.at(largest, part, sizes[labels])
+    region_keep = sizes[labels] >= min_region_fraction * largest[part]
     if np.count_nonzero(region_keep) >= floor:
         keep[idx[~region_keep]] = False
     return keep

@@ -383,7 +383,9 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
     depth = scene.depth_m[pix[:, 0], pix[:, 1]]
     pixel_m = float(np.median(depth)) / float(cam.K[0, 0])
     if o.completion_clean_points:
-        keep = object_point_mask(pts, pix, depth, plane.point, plane.normal)
+        others_px = np.argwhere((scene.masks > 0) & (scene.masks != spec.id))
+        keep = object_point_mask(pts, pix, depth, plane.point, plane.normal,
+                                 neighbour_pixels=others_px)
         pts, pix = pts[keep], pix[keep]
     table = (plane.point, plane.normal) if o.completion_carve_table else None
     view = (carve_view(cam.K, cam.world_from_camera, scene.depth_m, pix, plane=table)

@@ -1,0 +1,51 @@
+"""point_cleanup's two rules that look at the other masks and at the mask's parts
+(r2s/geometry/point_cleanup.py), on hand-made pixel sets with known answers."""
+
+import numpy as np
+
+from r2s.geometry.point_cleanup import interior_pixels, mask_parts, object_point_mask
+
+
+def _square(r0, c0, size):
+    rr, cc = np.mgrid[r0:r0 + size, c0:c0 + size]
+    return np.column_stack([rr.ravel(), cc.ravel()])
+
+
+def test_the_ring_runs_only_where_the_mask_borders_no_other_mask():
+    own = _square(100, 100, 40)
+    alone = interior_pixels(own, 6)
+    # more than 6 px (Euclidean) from the outline on all four sides: pixel k of a row or
+    # column is k + 1 from the outside, so rows and columns 6..33 of 40, a 28 x 28 core
+    assert alone.sum() == 28 * 28
+    # another object's mask along the whole left side: no outline there
+    left = _square(100, 80, 40)
+    left = left[left[:, 1] < 100]
+    beside = interior_pixels(own, 6, left)
+    # the left ring (columns 0..5, rows 6..33) joins the core
+    assert beside.sum() == 28 * (28 + 6)
+    assert not beside[own[:, 1] == 139].any()        # the right edge stays ring
+
+
+def test_mask_parts_close_small_gaps_only():
+    a = _square(0, 0, 20)
+    b = _square(0, 23, 20)        # a 3-px gap (a depth hole): the same part
+    c = _square(0, 60, 10)        # 17 px away: a part of its own
+    parts = mask_parts(np.vstack([a, b, c]))
+    assert len(set(parts[:400])) == 1 and parts[0] == parts[400]
+    assert len(set(parts[800:])) == 1 and parts[800] != parts[0]
+
+
+def test_a_part_seen_past_an_occluder_is_kept_and_bleed_is_dropped():
+    # a flat surface 20 mm above the table at 0.6 m: a large part (40 x 40 px) and, past a
+    # 12-px occluder, a small part (10 x 10 px, 6 % of the large one); plus 80 px of bleed
+    # on the large part's edge reading 5 cm farther (a surface behind it)
+    main, far_part = _square(100, 100, 40), _square(100, 152, 10)
+    bleed = _square(140, 100, 40)[:80]
+    pixels = np.vstack([main, far_part, bleed])
+    depth = np.full(len(pixels), 0.6)
+    depth[len(main) + len(far_part):] = 0.65
+    points = np.column_stack([pixels * 1e-3, np.full(len(pixels), 0.02)])
+    keep = object_point_mask(points, pixels, depth, np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    assert keep[:len(main)].all()
+    assert keep[len(main):len(main) + len(far_part)].all()     # dropped before this rule
+    assert not keep[len(main) + len(far_part):].any()
