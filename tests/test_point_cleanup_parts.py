@@ -37,9 +37,9 @@ def test_mask_parts_close_small_gaps_only():
 
 def test_a_part_seen_past_an_occluder_is_kept_and_bleed_is_dropped():
     # a flat surface 20 mm above the table at 0.6 m: a large part (40 x 40 px) and, past a
-    # 12-px occluder, a small part (10 x 10 px, 6 % of the large one); plus 80 px of bleed
+    # 12-px occluder, a small part (12 x 12 px, 9 % of the large one); plus 80 px of bleed
     # on the large part's edge reading 5 cm farther (a surface behind it)
-    main, far_part = _square(100, 100, 40), _square(100, 152, 10)
+    main, far_part = _square(100, 100, 40), _square(100, 152, 12)
     bleed = _square(140, 100, 40)[:80]
     pixels = np.vstack([main, far_part, bleed])
     depth = np.full(len(pixels), 0.6)
@@ -49,3 +49,12 @@ def test_a_part_seen_past_an_occluder_is_kept_and_bleed_is_dropped():
     assert keep[:len(main)].all()
     assert keep[len(main):len(main) + len(far_part)].all()     # dropped before this rule
     assert not keep[len(main) + len(far_part):].any()
+
+
+def test_a_speck_apart_from_the_mask_is_judged_against_the_whole_mask():
+    main, speck = _square(100, 100, 40), _square(100, 152, 5)   # 25 px < MIN_PART_PX
+    pixels = np.vstack([main, speck])
+    depth = np.full(len(pixels), 0.6)
+    points = np.column_stack([pixels * 1e-3, np.full(len(pixels), 0.02)])
+    keep = object_point_mask(points, pixels, depth, np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    assert keep[:len(main)].all() and not keep[len(main):].any()

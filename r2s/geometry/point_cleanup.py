@@ -74,6 +74,12 @@ PART_GAP_PX = 2
 """Mask pixels closer than twice this (a depth hole, a thin occluder) are one part."""
 
 
+MIN_PART_PX = 100
+"""A part of the mask with fewer pixels is compared with the whole mask's largest region
+(a speck cut off from the rest is more likely noise than the object seen past an
+occluder)."""
+
+
 def mask_parts(pixels: np.ndarray, gap_px: int = PART_GAP_PX) -> np.ndarray:
     """(N,) int part label of each of the (N, 2) mask pixels: the connected parts of the
     mask once gaps narrower than ``2 * gap_px`` pixels are closed."""
@@ -150,6 +156,8 @@ def object_point_mask(points_world: np.ndarray, pixels: np.ndarray, depth_m: np.
     part = mask_parts(np.asarray(pixels)[idx])
     largest = np.zeros(part.max() + 1, dtype=np.int64)
     np.maximum.at(largest, part, sizes[labels])
+    small_part = np.bincount(part) < MIN_PART_PX  # specks are judged against the whole mask
+    largest[small_part] = sizes.max()
     region_keep = sizes[labels] >= min_region_fraction * largest[part]
     if np.count_nonzero(region_keep) >= floor:
         keep[idx[~region_keep]] = False
