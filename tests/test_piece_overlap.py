@@ -88,3 +88,22 @@ def test_apart_pieces_are_returned_as_given():
     out, report = shave_overlaps(pieces, {1: pieces[1][0], 2: pieces[2][0]}, poses,
                                  order=[1, 2])
     assert out[1][0] is pieces[1][0] and out[2][0] is pieces[2][0] and report == {}
+
+
+def test_a_piece_standing_on_the_table_is_not_cut_from_below():
+    # A: a thin slab piece (8 mm) on the table whose visual mesh ends 1 mm before B (the
+    # piece overshoots it by 2 cm sideways); B: a 4 cm cube standing on the table with 2 cm
+    # of its base over the piece's edge: the shortest way out is up (8 mm, Bullet ~10 mm),
+    # but B stands on the table, so cutting its base would drop it: left to depenetration
+    pieces = {1: [_box([0.10, 0.10, 0.008])], 2: [_box([0.04, 0.04, 0.04])]}
+    meshes = {1: _box([0.079, 0.10, 0.008], [-0.0105, 0.0, 0.0]), 2: pieces[2][0]}
+    poses = {1: _pose([0.0, 0.0, 0.004]), 2: _pose([0.05 + 0.0, 0.0, 0.02])}
+    support = (np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    overlaps = piece_overlaps(pieces, poses)
+    assert overlaps and abs(overlaps[0].normal_world[2]) > 0.9
+    out, report = shave_overlaps(pieces, meshes, poses, order=[1, 2], support=support)
+    assert out[2][0] is pieces[2][0] and report == {}
+    # the same cube 3 mm above the table (resting on the slab only) is cut
+    poses[2] = _pose([0.05, 0.0, 0.023])
+    out, report = shave_overlaps(pieces, meshes, poses, order=[1, 2], support=support)
+    assert out[2][0] is not pieces[2][0] and set(report) == {2}

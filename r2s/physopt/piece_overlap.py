@@ -172,11 +172,13 @@ def shave_overlaps(pieces: dict[int, list[trimesh.Trimesh]], meshes: dict[int, t
                 continue
             # Bullet's normal points from b to a; `away` from the earlier piece to the later
             away = _unit(o.normal_world if swap else -o.normal_world)
-            out[later[0]][later[1]] = _cut_piece(out[later[0]][later[1]], poses[later[0]],
+            piece = out[later[0]][later[1]]
+            out[later[0]][later[1]] = _cut_piece(piece, poses[later[0]],
                                                  out[earlier[0]][earlier[1]],
-                                                 poses[earlier[0]], away)
+                                                 poses[earlier[0]], away, support)
             done.add(later)
-            cut[later[0]] = cut.get(later[0], 0) + 1
+            if out[later[0]][later[1]] is not piece:
+                cut[later[0]] = cut.get(later[0], 0) + 1
         out = {i: _without_empty(p, pieces[i]) for i, p in out.items()}
         overlaps = piece_overlaps(out, poses, min_depth_m)
     after = _deepest_by_object(overlaps)
@@ -189,6 +191,9 @@ CUT_CLEARANCE_M = 1.0e-3
 that touch as overlapping by about 2 mm (its margins), and physopt's depenetration leaves
 bodies at 1 mm (r2s.physopt.pybullet_world.BULLET_MARGIN_M); cut 1 mm further, a cut pair
 reports about 1 mm and is not pushed apart."""
+
+TABLE_CONTACT_M = 1.0e-3
+"""A piece's vertices this close to the table plane are where it stands on the table."""
 
 BELOW_SUPPORT_M = 0.5e-3
 """A piece reaching further below the table plane than this is cut at the plane."""
@@ -259,9 +264,13 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def _cut_piece(piece: trimesh.Trimesh, pose: np.ndarray, other: trimesh.Trimesh,
-               other_pose: np.ndarray, away_world: np.ndarray) -> trimesh.Trimesh | None:
+               other_pose: np.ndarray, away_world: np.ndarray,
+               support: tuple[np.ndarray, np.ndarray] | None = None) -> trimesh.Trimesh | None:
     """``piece`` (object frame at ``pose``) less the half-space behind ``other``'s extent
-    along ``away_world`` (unit, world); None when nothing is left."""
+    along ``away_world`` (unit, world); None when nothing is left. The piece is returned
+    uncut when a cut from below would take away where it stands on the table
+    (``support``: point, upward unit normal): a piece that overlaps its neighbour's while
+    resting on the table is beside the neighbour, and cutting its foot would drop it.""" 
     level = float(np.max(transform_points(other_pose, np.asarray(other.vertices)) @ away_world)
                   ) + CUT_CLEARANCE_M
     normal = np.asarray(pose)[:3, :3].T @ away_world
@@ -269,6 +278,11 @@ def _cut_piece(piece: trimesh.Trimesh, pose: np.ndarray, other: trimesh.Trimesh,
     heights = np.asarray(piece.vertices) @ normal - origin @ normal
     if heights.min() >= 0.0:
         return piece
+    if support is not None and float(away_world @ _unit(support[1])) > 0.5:
+        world = transform_points(pose, np.asarray(piece.vertices))
+        on_table = (world - support[0]) @ _unit(support[1]) < TABLE_CONTACT_M
+        if np.any(on_table & (heights < 0.0)):
+            return piece
     if heights.max() <= 1e-4:
         return None
     return capped_hull(_clipped_vertices(piece, heights))
