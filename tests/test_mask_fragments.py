@@ -105,3 +105,22 @@ def test_a_declared_id_is_kept_over_a_larger_undeclared_piece():
     assert list(parents) == [7] and parents[7][0] == 1
     assert list(fragment_parents(masks, depth, rgb)) == [1]
     assert list(fragment_parents(masks, depth, rgb, declared_ids=[1, 7])) == [1]
+
+
+def test_a_thin_split_with_depth_missing_along_the_cut_is_one_object():
+    """A marker 10 px thick cut across into ids 3 and 6: 10 boundary pairs, depth read on
+    only 5 of them (dark, thin: holes). Joined when at least 4 pairs carry depth (the rule
+    before asked for 8), and not on 2 (too little to tell a split from two objects
+    touching)."""
+    masks = np.zeros((H, W), np.int32)
+    masks[35:45, 20:80], masks[35:45, 80:100] = 3, 6
+    rgb = _image((30, 30, 30), (30, 30, 30), 70)
+    depth = _plane_depth()
+    depth[35:45, 79:81] = np.nan
+    depth[35:40, 79:81] = 0.8 + 0.0005 * np.arange(35, 40)[:, None]  # 5 rows read
+    ev = boundary_evidence(masks, depth, rgb)[0]
+    assert (ev.pairs, ev.boundary_pairs) == (5, 10)
+    parents = fragment_parents(masks, depth, rgb)
+    assert parents and parents[6][0] == 3
+    depth[35:38, 79:81] = np.nan                                       # 2 rows read
+    assert fragment_parents(masks, depth, rgb) == {}

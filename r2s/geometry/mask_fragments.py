@@ -39,6 +39,7 @@ JUMP_FRACTION = 0.01
 MIN_CONTINUOUS_FRACTION = 0.85
 MAX_COLOUR_DISTANCE = 40.0
 MIN_PAIRS = 8
+MIN_VALID_PAIRS = 4
 MIN_OUTLINE_FRACTION = 0.05
 STRIP_PX = 4
 BLEED_PX = 4
@@ -50,6 +51,8 @@ class BoundaryEvidence:
 
     pairs : 4-neighbour pixel pairs across the boundary with valid depth on both sides.
     continuous_fraction : share of those pairs without a depth jump.
+    boundary_pairs : all 4-neighbour pixel pairs across the boundary (a thin object's split
+        is short, and depth is often missing along it).
     colour_distance : RGB distance of the two sides' mean colours along the boundary.
     outline_fraction : boundary pixels of the smaller id over its outline pixels.
     """
@@ -60,9 +63,10 @@ class BoundaryEvidence:
     continuous_fraction: float
     colour_distance: float
     outline_fraction: float
+    boundary_pairs: int = 0
 
     def is_one_object(self) -> bool:
-        return (self.pairs >= MIN_PAIRS
+        return (self.pairs >= MIN_VALID_PAIRS and max(self.pairs, self.boundary_pairs) >= MIN_PAIRS
                 and self.continuous_fraction >= MIN_CONTINUOUS_FRACTION
                 and self.colour_distance <= MAX_COLOUR_DISTANCE
                 and self.outline_fraction >= MIN_OUTLINE_FRACTION)
@@ -111,7 +115,8 @@ def boundary_evidence(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
             small_id=int(small), large_id=int(large), pairs=n_valid,
             continuous_fraction=continuous,
             colour_distance=_colour_distance(crop_masks, crop_rgb, i, j, strip_px),
-            outline_fraction=_outline_fraction(crop_masks, small, large)))
+            outline_fraction=_outline_fraction(crop_masks, small, large),
+            boundary_pairs=int(sel.sum())))
     return out
 
 
