@@ -117,25 +117,9 @@ def _fill(values: np.ndarray, known: np.ndarray, xs: np.ndarray, ys: np.ndarray)
     return out
 
 
-OFF_CENTRE_SUPPORT_MAX_M = 0.01
-"""A support seen only to one side of an object is taken only when lower than this."""
-
-
-def _under_centre(support_xy: np.ndarray, object_xy: np.ndarray) -> bool:
-    """Whether the centre of the object's footprint ((N, 2) points) lies inside the 2-D hull
-    of the support's points ((M, 2))."""
-    try:
-        hull = ConvexHull(support_xy)
-    except (QhullError, ValueError):
-        return False
-    centre = object_xy[ConvexHull(object_xy).vertices].mean(axis=0)
-    return bool(np.all(hull.equations[:, :2] @ centre + hull.equations[:, 2] <= 0.0))
-
-
 def _support_height(pts: np.ndarray, below: np.ndarray | None, hull_eq: np.ndarray,
                     margin_m: float, min_points: int = 30, envelope_percentile: float = 95.0,
-                    beside_share: float = 0.2, beside_m: float = 0.003,
-                    off_centre_max_m: float = OFF_CENTRE_SUPPORT_MAX_M
+                    beside_share: float = 0.2, beside_m: float = 0.003
                     ) -> tuple[float, np.ndarray | None]:
     """Height of what the object stands on, as a plane ``z = a x + b y + c`` or 0.
 
@@ -155,9 +139,6 @@ def _support_height(pts: np.ndarray, below: np.ndarray | None, hull_eq: np.ndarr
     sel = below[(footprint_sdf(hull_eq, below[:, :2]) < margin_m)
                 & (below[:, 2] < z_low + margin_m) & (below[:, 2] > margin_m / 2)]
     if len(sel) < min_points or np.mean(sel[:, 2] > z_low + beside_m) > beside_share:
-        return 0.0, None
-    if (float(np.percentile(sel[:, 2], envelope_percentile)) > off_centre_max_m
-            and not _under_centre(sel[:, :2], pts[:, :2])):
         return 0.0, None
     a = np.c_[sel[:, 0], sel[:, 1], np.ones(len(sel))]
     coef, *_ = np.linalg.lstsq(a, sel[:, 2], rcond=None)
