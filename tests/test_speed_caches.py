@@ -79,8 +79,8 @@ def test_piece_obj_text_is_trimeshs_export():
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "p.obj"
         piece.export(path)
-        assert pybullet_world._obj_bytes(piece) == path.read_bytes()
-        assert pybullet_world._obj_bytes(piece) == path.read_bytes()  # remembered
+        assert pybullet_world.obj_file_bytes(piece) == path.read_bytes()
+        assert pybullet_world.obj_file_bytes(piece) == path.read_bytes()  # remembered
 
 
 def test_multi_part_text_remembered_is_the_text_computed():

@@ -63,10 +63,10 @@ class BoundaryEvidence:
     continuous_fraction: float
     colour_distance: float
     outline_fraction: float
-    boundary_pairs: int = 0
+    boundary_pairs: int
 
     def is_one_object(self) -> bool:
-        return (self.pairs >= MIN_VALID_PAIRS and max(self.pairs, self.boundary_pairs) >= MIN_PAIRS
+        return (self.pairs >= MIN_VALID_PAIRS and self.boundary_pairs >= MIN_PAIRS
                 and self.continuous_fraction >= MIN_CONTINUOUS_FRACTION
                 and self.colour_distance <= MAX_COLOUR_DISTANCE
                 and self.outline_fraction >= MIN_OUTLINE_FRACTION)

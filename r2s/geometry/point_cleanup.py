@@ -6,9 +6,9 @@ its depth edges. Completion turns every kept point into material, so a few forei
 stretch the footprint far past the object. Two tests, on the mask's pixels:
 
 - *support band*: points within ``plane_band_m`` of the support plane, on the mask's outer
-  ``edge_px`` ring where it borders no other object's mask, are the table (bleed reaches into a mask from its outline; the
-  object's own base is restored by the extrusion down to the support); skipped when too
-  few points would remain (a flat object lying on the table). Such points deeper inside
+  ``edge_px`` ring where it borders no other object's mask, are the table (bleed reaches
+  into a mask from its outline; the object's own base is restored by the extrusion down to
+  the support); skipped when too few points would remain (a flat object lying on the table). Such points deeper inside
   the mask are kept: table seen *through* an object's mask is cut off from the table
   around it, while the floor of a plate or a tray, a few millimetres up, is the object's
   own surface (dropping it carved the plate into a ring);

@@ -1,5 +1,4 @@
-"""Where two objects' convex collision pieces overlap as Bullet measures it, and which
-points of the overlap each piece should not hold.
+"""Convex collision pieces cut where two objects' pieces overlap as Bullet measures it.
 
 :mod:`r2s.geometry.collision_trim` rebuilds a piece where a neighbour's *visual* surface
 lies inside it. Two pieces can still overlap where neither visual surface reaches far into
@@ -11,11 +10,10 @@ lifts the fruit by that much. Measured on the seed demo without priors: piece pa
 overlapping by 4-7.6 mm where the visual surfaces reach 1-3 mm into the pieces.
 
 Here every pair of pieces of two different objects is measured in a PyBullet world with
-the pieces as static bodies at the objects' poses; for each pair that overlaps by more
-than a tolerance, the overlap is sampled (each piece's surface samples inside the other,
-and Bullet's two witness points), and the samples outside an object's own closed mesh are
-what that object's piece holds wrongly: the points to trim it against. All poses are
-(4, 4) ``world_from_object``; pieces are in their object's frame; metres.
+the pieces as static bodies at the objects' poses (:func:`piece_overlaps`), and of each
+pair that overlaps by more than a tolerance the piece of the object resting on the other
+is cut by a plane across Bullet's penetration direction (:func:`shave_overlaps`). All
+poses are (4, 4) ``world_from_object``; pieces are in their object's frame; metres.
 """
 
 from __future__ import annotations
@@ -31,17 +29,15 @@ import trimesh
 from r2s.geometry.camera import transform_points
 from r2s.geometry.collision_trim import capped_hull, inside_depth_m
 from r2s.geometry.sdf import raycasting_scene, winding_number
+from r2s.physopt.pybullet_world import obj_file_bytes
 from r2s.sim.pybullet_bodies import connect_direct, quat_xyzw_from_matrix
 
 PieceKey = tuple[int, int]
 """(object id, index of the piece in that object's list)."""
 
 OVERLAP_TOLERANCE_M = 1.5e-3
-"""Bullet reports touching convex pieces as overlapping by its ~1 mm margin; an overlap
-beyond 2 mm is a millimetre of real overlap that depenetration would push apart."""
-
-PIECE_SAMPLES = 600
-"""Surface samples of each piece of an overlapping pair (deterministic seeds)."""
+"""Overlaps deeper than this, as Bullet reports them (its margins included), are what
+physopt's depenetration pushes apart (its tolerance, r2s.physopt.pybullet_world)."""
 
 
 @dataclass(frozen=True)
@@ -51,7 +47,6 @@ class Overlap:
     a: PieceKey
     b: PieceKey
     depth_m: float
-    witness_world: np.ndarray  # (2, 3) Bullet's deepest points on a and on b
     normal_world: np.ndarray  # (3,) Bullet's contact normal on b, pointing towards a
 
 
@@ -77,7 +72,6 @@ def piece_overlaps(pieces: dict[int, list[trimesh.Trimesh]], poses: dict[int, np
                 deepest = min(pts, key=lambda p: p[8])
                 if -deepest[8] > min_depth_m:
                     out.append(Overlap(ka, kb, -float(deepest[8]),
-                                       np.array([deepest[5], deepest[6]], dtype=float),
                                        np.asarray(deepest[7], dtype=float)))
         return sorted(out, key=lambda o: -o.depth_m)
     finally:
@@ -95,7 +89,7 @@ def _static_pieces(client: int, folder: Path, pieces: dict[int, list[trimesh.Tri
     bodies = {}
     for key, piece in _items(pieces):
         path = folder / f"{key[0]}_{key[1]}.obj"
-        piece.export(path)
+        path.write_bytes(obj_file_bytes(piece))  # remembered: the rounds rebuild worlds
         shape = pb.createCollisionShape(pb.GEOM_MESH, fileName=str(path),
                                         physicsClientId=client)
         pose = np.asarray(poses[key[0]], dtype=float)
@@ -125,9 +119,11 @@ class OverlapShave:
     cuts: int
 
 
-def shave_overlaps(pieces: dict[int, list[trimesh.Trimesh]], meshes: dict[int, trimesh.Trimesh],
-                   poses: dict[int, np.ndarray], order: list[int], support: tuple[np.ndarray, np.ndarray] | None = None,
-                   rounds: int = 5, min_depth_m: float = OVERLAP_TOLERANCE_M) -> tuple[dict[int, list[trimesh.Trimesh]], dict[int, OverlapShave]]:
+def shave_overlaps(pieces: dict[int, list[trimesh.Trimesh]],
+                   meshes: dict[int, trimesh.Trimesh], poses: dict[int, np.ndarray],
+                   order: list[int], support: tuple[np.ndarray, np.ndarray] | None = None,
+                   rounds: int = 5, min_depth_m: float = OVERLAP_TOLERANCE_M
+                   ) -> tuple[dict[int, list[trimesh.Trimesh]], dict[int, OverlapShave]]:
     """Of two overlapping pieces of different objects, the piece of the object later in
     ``order`` (root to leaves: the one resting on the other) is cut by the plane that
     separates it from the other along Bullet's penetration direction (at the other piece's
@@ -145,8 +141,7 @@ def shave_overlaps(pieces: dict[int, list[trimesh.Trimesh]], meshes: dict[int, t
     Only the pieces' overshoot is cut: where two objects' visual ``meshes`` themselves
     interpenetrate by more than :data:`VISUAL_PENETRATION_M`, their pieces are left for
     the depenetration to push apart (a mesh sunk into the table is lifted the same way).
-    Returns the pieces and a report per object
-    whose pieces were cut."""
+    Returns the pieces and a report per object whose pieces were cut."""
     rank = {i: k for k, i in enumerate(order)}
     out = {i: list(p) for i, p in pieces.items()}
     if support is not None:
@@ -254,9 +249,7 @@ def _below_cut(piece: trimesh.Trimesh, pose: np.ndarray, mesh: trimesh.Trimesh,
     heights = heights - min(visual, 0.0)
     if heights.min() >= -BELOW_SUPPORT_M:
         return piece
-    if heights.max() <= 1e-4:
-        return None
-    return capped_hull(_clipped_vertices(piece, heights))
+    return _clipped(piece, heights)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -270,7 +263,7 @@ def _cut_piece(piece: trimesh.Trimesh, pose: np.ndarray, other: trimesh.Trimesh,
     along ``away_world`` (unit, world); None when nothing is left. The piece is returned
     uncut when a cut from below would take away where it stands on the table
     (``support``: point, upward unit normal): a piece that overlaps its neighbour's while
-    resting on the table is beside the neighbour, and cutting its foot would drop it.""" 
+    resting on the table is beside the neighbour, and cutting its foot would drop it."""
     level = float(np.max(transform_points(other_pose, np.asarray(other.vertices)) @ away_world)
                   ) + CUT_CLEARANCE_M
     normal = np.asarray(pose)[:3, :3].T @ away_world
@@ -283,6 +276,12 @@ def _cut_piece(piece: trimesh.Trimesh, pose: np.ndarray, other: trimesh.Trimesh,
         on_table = (world - support[0]) @ _unit(support[1]) < TABLE_CONTACT_M
         if np.any(on_table & (heights < 0.0)):
             return piece
+    return _clipped(piece, heights)
+
+
+def _clipped(piece: trimesh.Trimesh, heights: np.ndarray) -> trimesh.Trimesh | None:
+    """The convex ``piece`` clipped to ``heights >= 0`` ((V,) signed distances of its
+    vertices to the cutting plane), or None when (almost) nothing is left."""
     if heights.max() <= 1e-4:
         return None
     return capped_hull(_clipped_vertices(piece, heights))

@@ -70,7 +70,7 @@ def build_world(bodies: Sequence[SimBody], support_point: Sequence[float],
         files = []
         for k, piece in enumerate(body.pieces):
             f = Path(tmp.name) / f"{body.id}_{k}.obj"
-            f.write_bytes(_obj_bytes(piece))
+            f.write_bytes(obj_file_bytes(piece))
             files.append(f)
         ids[body.id] = add_rigid_body(client, files, body.world_from_object, body.mass_kg,
                                       body.com_in_object, body.friction)
@@ -83,7 +83,7 @@ _OBJ_TEXT: dict[bytes, bytes] = {}
 same pieces; trimesh's OBJ writer takes most of a world's Python time)."""
 
 
-def _obj_bytes(piece: trimesh.Trimesh) -> bytes:
+def obj_file_bytes(piece: trimesh.Trimesh) -> bytes:
     """The OBJ file of the piece's vertices and faces, as trimesh writes it for a plain
     piece (what ``piece.export`` wrote here before), remembered by those arrays."""
     v = np.ascontiguousarray(piece.vertices, dtype=np.float64)

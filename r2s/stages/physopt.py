@@ -78,9 +78,11 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
                           "an object it rests on or beside (the later one in the support order) "
                           "or reach below the table, so the depenetration does not push it off "
                           "where it was seen (r2s/physopt/piece_overlap.py).")
-    trim_split_levels: int = Field(MAX_SPLIT_DEPTH, ge=0, le=8, description="Most levels a trimmed piece is "
-                                   "split at its intruders (up to 2**levels pieces; "
-                                   "docs/realistic.md measured 5 on the seed demo).")
+    trim_split_levels: int = Field(
+        MAX_SPLIT_DEPTH, ge=0, le=8, description="Most levels a trimmed piece is split at its "
+                                                 "intruders (up to 2**levels pieces; "
+                                                 "docs/realistic.md measured 5 on the seed "
+                                                 "demo).")
 
 
 def _source(paths: ScenePaths, options: Options, manifest: Manifest) -> str:
@@ -150,19 +152,20 @@ def _collision_pieces(ctx: StageContext, state: SceneState, meshes: dict,
                       convex: ConvexParams, order: list[int]) -> _Pieces:
     """Each object's convex decomposition (cached), trimmed where neighbours reach in, then
     cut where pieces of two objects still overlap (``order``: root to leaves)."""
-    trimmed = _trimmed_pieces(ctx, state, meshes, convex)
+    poses = {o.id: np.asarray(o.pose) for o in state.objects}
+    trimmed = _trimmed_pieces(ctx, state, meshes, poses, convex)
     if not ctx.options.shave_overlaps:
         return trimmed
     ctx.progress("collision pieces cut where they overlap", 0.15)
-    poses = {o.id: np.asarray(o.pose) for o in state.objects}
     support = (np.asarray(state.support.point), np.asarray(state.support.normal))
     cut, shaved = shave_overlaps(trimmed.pieces, meshes, poses, order, support)
     return _Pieces(cut, trimmed.reports, shaved)
 
 
-def _trimmed_pieces(ctx: StageContext, state: SceneState, meshes: dict,
+def _trimmed_pieces(ctx: StageContext, state: SceneState, meshes: dict, poses: dict,
                     convex: ConvexParams) -> _Pieces:
-    """Each object's convex decomposition (cached), trimmed where neighbours reach in."""
+    """Each object's convex decomposition (cached), trimmed where neighbours reach in
+    (poses: id -> (4, 4) world_from_object)."""
     pieces = {}
     for k, o in enumerate(state.objects):
         ctx.progress(f"object {o.id}: collision pieces", 0.1 * k / max(len(state.objects), 1))
@@ -173,9 +176,7 @@ def _trimmed_pieces(ctx: StageContext, state: SceneState, meshes: dict,
         return _Pieces(pieces, {}, {})
     ctx.progress("collision pieces against the neighbours", 0.1)
     only = None if mode == "all" else {o.id for o in state.objects if o.source == "completed"}
-    trimmed, reports = trim_scene_pieces(pieces, meshes,
-                                         {o.id: np.asarray(o.pose) for o in state.objects},
-                                         only=only,
+    trimmed, reports = trim_scene_pieces(pieces, meshes, poses, only=only,
                                          max_split_depth=ctx.options.trim_split_levels)
     return _Pieces(trimmed, reports, {})
 
