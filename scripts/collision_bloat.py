@@ -10,8 +10,13 @@ volume over its convex hull's, and how deep (mm) the visual mesh of each other o
 reaches into its pieces (4000 seeded surface samples; listed when over 2 mm; physopt
 does not trim against the samples that lie inside the object's own mesh).
 
+With --overlaps: every pair of objects whose pieces Bullet finds overlapping by more
+than 1.5 mm (r2s/physopt/piece_overlap.py; its margins, about 1 mm per hull, included),
+the deepest such overlap, and how deep the two visual meshes reach into each other
+(physopt cuts the pieces only where that is at most 1.5 mm).
+
 Usage:
-  python scripts/collision_bloat.py SCENE [--stage geomopt] [--trimmed]
+  python scripts/collision_bloat.py SCENE [--stage geomopt] [--trimmed] [--overlaps]
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ from r2s.geometry.collision_trim import inside_depth_m, surface_points, trim_sce
 from r2s.geometry.convex import convex_decomposition  # noqa: E402
 from r2s.io.mesh_io import load_mesh, welded  # noqa: E402
 from r2s.io.state import read_state  # noqa: E402
+from r2s.physopt.piece_overlap import piece_overlaps, visual_penetration_m  # noqa: E402
 
 
 def union_volume_m3(pieces: list, samples: int = 200_000) -> float:
@@ -48,6 +54,9 @@ def main() -> None:
     ap.add_argument("--stage", default="geomopt")
     ap.add_argument("--trimmed", action="store_true",
                     help="trim the pieces against the neighbours as physopt does")
+    ap.add_argument("--overlaps", action="store_true",
+                    help="the piece pairs Bullet finds overlapping, and the visual meshes' "
+                         "own interpenetration")
     args = ap.parse_args()
     state = read_state(args.scene / args.stage)
     meshes = {o.id: welded(load_mesh(args.scene / args.stage / o.mesh)) for o in state.objects}
@@ -71,6 +80,21 @@ def main() -> None:
             if depth > 0.002:
                 line += f"; object {b} reaches {1000 * depth:.1f} mm into its pieces"
         print(line)
+    if args.overlaps:
+        print_overlaps(pieces, meshes, poses)
+
+
+def print_overlaps(pieces: dict, meshes: dict, poses: dict) -> None:
+    """Per object pair: the deepest Bullet overlap of their pieces and the visual meshes'
+    interpenetration (mm)."""
+    deepest: dict[tuple[int, int], float] = {}
+    for o in piece_overlaps(pieces, poses):
+        pair = (min(o.a[0], o.b[0]), max(o.a[0], o.b[0]))
+        deepest[pair] = max(deepest.get(pair, 0.0), o.depth_m)
+    for (i, j), depth in sorted(deepest.items()):
+        visual = visual_penetration_m(meshes, poses, i, j)
+        print(f"objects {i} and {j}: pieces overlap {1000 * depth:.1f} mm (Bullet), visual "
+              f"meshes {1000 * visual:.1f} mm into each other")
 
 
 if __name__ == "__main__":

@@ -6,8 +6,9 @@ the other piece: each piece overshoots its own mesh a little on the side facing 
 (a plate's piece spans a few mm of air over its curved floor, a fruit's piece cuts across
 a dent of its underside), the two overshoots add up, and Bullet separates the two bodies by
 the whole overlap along one direction (its penetration depth), so physopt's depenetration
-lifts the fruit by that much. Measured on the seed demo without priors: piece pairs
-overlapping by 4-7.6 mm where the visual surfaces reach 1-3 mm into the pieces.
+lifts the fruit by that much. Measured on the seed demo without priors (docs/
+convex_decomposition.md): piece pairs overlapping by 2.1-7.4 mm where the visual meshes
+reach at most 0.7 mm into each other.
 
 Here every pair of pieces of two different objects is measured in a PyBullet world with
 the pieces as static bodies at the objects' poses (:func:`piece_overlaps`), and of each
@@ -162,7 +163,7 @@ def shave_overlaps(pieces: dict[int, list[trimesh.Trimesh]],
                 continue  # measured before one of them was cut: the next round measures again
             pair = (min(later[0], earlier[0]), max(later[0], earlier[0]))
             if pair not in sunk:
-                sunk[pair] = _visual_penetration_m(meshes, poses, *pair) > VISUAL_PENETRATION_M
+                sunk[pair] = visual_penetration_m(meshes, poses, *pair) > VISUAL_PENETRATION_M
             if sunk[pair]:
                 continue
             # Bullet's normal points from b to a; `away` from the earlier piece to the later
@@ -202,7 +203,7 @@ VISUAL_SAMPLES = 3000
 """Surface samples of a mesh for the visual penetration test."""
 
 
-def _visual_penetration_m(meshes: dict[int, trimesh.Trimesh], poses: dict[int, np.ndarray],
+def visual_penetration_m(meshes: dict[int, trimesh.Trimesh], poses: dict[int, np.ndarray],
                           i: int, j: int) -> float:
     """How deep the visual meshes of objects i and j reach into each other (m): the
     deepest surface sample of one behind the nearest face of the other (the side its
