@@ -6,7 +6,9 @@ prior_choice=prior`` and ``--set prior_choice=completion`` through the command l
 prints, per object with a prior, the scores init recorded for both candidates (silhouette
 IoU with the others z-buffered, UCD mm, free-space violation; r2s/geometry/prior_choice.py),
 the Chamfer distance (mm) of each candidate's init mesh against the gt object of the same
-id, and what ``prior_choice=auto`` would choose with the default margins (or those given).
+id, how far each went when set down alone on the table (objects standing alone on it; the
+rest rule), and what ``prior_choice=auto`` would choose with the default margins (or those
+given) and the default rest rule.
 gt/ is read here only, to calibrate the margins; init never reads it. The copy's manifest
 is left recording ``prior_choice=completion``, which a later ``r2s run`` reuses: run it with
 ``--set init.prior_choice=auto`` to go back to the default.
@@ -29,7 +31,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from r2s.geometry.prior_choice import ChoiceMargins, ViewScore, choose  # noqa: E402
+from r2s.geometry.prior_choice import ChoiceMargins, Rest, ViewScore, choose  # noqa: E402
 from r2s.io.mesh_io import load_mesh  # noqa: E402
 from r2s.io.paths import ScenePaths  # noqa: E402
 from r2s.io.scene_json import read_gt_scene  # noqa: E402
@@ -65,23 +67,40 @@ def main() -> None:
     args = parser.parse_args()
     margins = ChoiceMargins(args.iou_gain, args.ucd_gain_mm, args.free_space_slack)
     print("| scene | id | prior IoU / UCD / free | completion IoU / UCD / free "
+          "| alone on the table: prior / completion moved mm, turned deg "
           "| CD prior [mm] | CD completion [mm] | auto chooses | better against gt |")
-    print("|---|---:|---|---|---:|---:|---|---|")
+    print("|---|---:|---|---|---|---:|---:|---|---|")
+    by_rest: list[tuple[float, float]] = []  # (CD prior, CD completion) the rest rule swaps
     for root in args.scenes:
         with_prior = _init(root, "prior")
         completed = _init(root, "completion")
         for i in sorted(with_prior):
             cd_p, rec = with_prior[i]
             if rec["prior"] is None or rec["completion"] is None:
-                print(f"| {root.name} | {i} | - | not completed | {cd_p:.1f} | - | prior | - |")
+                print(f"| {root.name} | {i} | - | not completed | - | {cd_p:.1f} | - | prior "
+                      "| - |")
                 continue
             cd_c = completed[i][0] if i in completed else float("nan")
             p, c = ViewScore(**rec["prior"]), ViewScore(**rec["completion"])
-            chosen, _ = choose(p, c, margins)
+            alone = rec.get("rest_alone")
+            rest = None if alone is None else tuple(
+                Rest(alone[k]["moved_mm"] / 1000.0, alone[k]["turned_deg"])
+                for k in ("prior", "completion"))
+            chosen, _ = choose(p, c, margins, rest)
+            if chosen != choose(p, c, margins)[0]:
+                by_rest.append((cd_p, cd_c))
             best = "completion" if cd_c < cd_p else "prior"
+            rest_txt = "not alone" if alone is None else " / ".join(
+                f"{alone[k]['moved_mm']:.0f}, {alone[k]['turned_deg']:.0f}"
+                for k in ("prior", "completion"))
             print(f"| {root.name} | {i} | {p.iou:.2f} / {p.ucd_mm:.1f} / {p.free_space:.3f} "
-                  f"| {c.iou:.2f} / {c.ucd_mm:.1f} / {c.free_space:.3f} | {cd_p:.1f} "
-                  f"| {cd_c:.1f} | {chosen} | {best} |", flush=True)
+                  f"| {c.iou:.2f} / {c.ucd_mm:.1f} / {c.free_space:.3f} | {rest_txt} "
+                  f"| {cd_p:.1f} | {cd_c:.1f} | {chosen} | {best} |", flush=True)
+    if by_rest:
+        cd = np.array(by_rest)
+        print(f"\nthe rest rule alone replaces {len(cd)} priors ({int(np.sum(cd[:, 1] < cd[:, 0]))} "
+              f"of them closer to gt as completions); mean CD at init {cd[:, 0].mean():.2f} -> "
+              f"{cd[:, 1].mean():.2f} mm")
 
 
 if __name__ == "__main__":

@@ -173,3 +173,76 @@ def test_a_neighbour_beside_the_object_is_not_its_support():
     slab = np.c_[ring, rng.uniform(0.030, 0.035, len(ring))]
     under = complete_from_points(high, [0, 0, 0], [0, 0, 1], below_points_world=slab)
     assert under.bottom_m == pytest.approx(0.035, abs=0.003)
+
+
+def _box_seen_above(rng: np.random.Generator, n: int = 3000) -> np.ndarray:
+    """Points of a 100 x 80 mm box's top at 80 mm and of its front face down to 45 mm:
+    its lower 45 mm are hidden."""
+    top = np.c_[rng.uniform(-0.05, 0.05, n), rng.uniform(-0.04, 0.04, n), np.full(n, 0.08)]
+    front = np.c_[rng.uniform(-0.05, 0.05, n), np.full(n, -0.04), rng.uniform(0.045, 0.08, n)]
+    return np.vstack([top, front])
+
+
+def test_an_occluder_in_front_is_judged_per_object_and_is_not_a_support():
+    """The box's lower part is hidden by a wall in front of it (points 5-70 mm high, within
+    the footprint's 1 cm margin): given per object, the wall rises past the box's lowest
+    seen point (45 mm), so it stands in front, not under, and the box reaches the table.
+    Mixed into one array with nothing else, only the wall's points below 55 mm are weighed
+    and 14 % of them rise past 48 mm (under the 20 % share): they hold the box up, the
+    behaviour a list of objects avoids. A slab under the box (all of it below 35 mm) given
+    beside the wall still holds the box up: its base lands on the slab's top within 3 mm."""
+    rng = np.random.default_rng(1)
+    box_pts = _box_seen_above(rng)
+    wall = np.c_[rng.uniform(-0.05, 0.05, 1500), np.full(1500, -0.046),
+                 rng.uniform(0.005, 0.07, 1500)]
+    mixed = complete_from_points(box_pts, [0, 0, 0], [0, 0, 1], below_points_world=wall)
+    assert mixed.bottom_m > 0.03
+    alone = complete_from_points(box_pts, [0, 0, 0], [0, 0, 1], below_points_world=[wall])
+    assert alone.bottom_m == pytest.approx(0.0, abs=1e-6)
+    xy = rng.uniform([-0.06, -0.05], [0.06, 0.05], (4000, 2))
+    ring = xy[(np.abs(xy[:, 0]) > 0.05) | (np.abs(xy[:, 1]) > 0.04)]
+    slab = np.c_[ring, rng.uniform(0.030, 0.035, len(ring))]
+    on_slab = complete_from_points(box_pts, [0, 0, 0], [0, 0, 1],
+                                   below_points_world=[wall, slab])
+    assert on_slab.bottom_m == pytest.approx(0.035, abs=0.003)
+
+
+def test_an_object_lying_across_another_rests_on_it_column_by_column():
+    """A 200 x 60 mm board whose top is seen at 100 mm lies across a 80 x 80 x 60 mm box
+    under its left end (x < -0.02): completed with the box as a mesh under it, the board's
+    base rests on the box's top (60 mm) in the box's columns and reaches the table
+    elsewhere; without it, every column reaches the table. A box taller than the board's
+    top (150 mm) is beside it, not under it, and changes nothing."""
+    from r2s.geometry.sdf import occupancy, raycasting_scene
+
+    rng = np.random.default_rng(2)
+    n = 6000
+    board = np.c_[rng.uniform(-0.1, 0.1, n), rng.uniform(-0.03, 0.03, n), np.full(n, 0.10)]
+    under = trimesh.creation.box((0.08, 0.08, 0.06))
+    under.apply_translation([-0.06, 0.0, 0.03])
+    probes = np.array([[-0.06, 0.0, 0.03],   # inside the box under the board
+                       [-0.06, 0.0, 0.08],   # between the box's top and the board's top
+                       [0.06, 0.0, 0.03]])   # under the board's free end
+    for meshes, expected in (([under], [False, True, True]), ([], [True, True, True])):
+        done = complete_from_points(board, [0, 0, 0], [0, 0, 1], under_meshes_world=meshes)
+        world = done.mesh.copy().apply_transform(done.world_from_object)
+        inside = occupancy(raycasting_scene(world.vertices, world.faces), probes)
+        assert inside.tolist() == expected
+    rest = complete_from_points(board, [0, 0, 0], [0, 0, 1], under_meshes_world=[under])
+    lowest_over_box = _lowest_at(rest, -0.06)
+    assert lowest_over_box == pytest.approx(0.06, abs=0.004)
+    tall = trimesh.creation.box((0.08, 0.08, 0.15))
+    tall.apply_translation([-0.06, 0.0, 0.075])
+    beside = complete_from_points(board, [0, 0, 0], [0, 0, 1], under_meshes_world=[tall])
+    assert _lowest_at(beside, -0.06) == pytest.approx(0.0, abs=0.004)
+
+
+def _lowest_at(done, x: float) -> float:
+    """Height of the completed mesh's underside at (x, 0), cast upward from below."""
+    import open3d as o3d
+    from r2s.geometry.sdf import raycasting_scene
+
+    world = done.mesh.copy().apply_transform(done.world_from_object)
+    scene = raycasting_scene(world.vertices, world.faces)
+    ray = np.array([[x, 0.0, -1.0, 0.0, 0.0, 1.0]], dtype=np.float32)
+    return float(scene.cast_rays(o3d.core.Tensor(ray))["t_hit"].numpy()[0]) - 1.0

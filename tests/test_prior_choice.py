@@ -86,6 +86,10 @@ def test_init_completes_a_prior_too_long_and_keeps_an_exact_one(tmp_path):
     # (its scale is bounded to 0.85-1.15)
     assert box["completion"]["iou"] > 0.9 and box["prior"]["iou"] < 0.8
     assert cube["prior"]["iou"] > 0.95 and cube["prior"]["ucd_mm"] < 0.5
+    # the cube stands alone on the table: its exact prior, set down there, rests (it only
+    # drops the 0.5 mm set-down gap)
+    assert cube["rest_alone"]["prior"]["moved_mm"] < 2.0
+    assert cube["rest_alone"]["prior"]["turned_deg"] < 1.0
     assert result.summary["prior_choice"] == {"1": "completion", "2": "prior"}
     assert any(f.startswith("object 1: its prior was replaced by the completion")
                for f in result.summary["flags"])

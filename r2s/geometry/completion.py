@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 import trimesh
@@ -46,6 +46,7 @@ from skimage.measure import marching_cubes
 from r2s.geometry.camera import transform_points
 from r2s.geometry.carving import CarveView, hidden_by_other, seen_free
 from r2s.geometry.plane import world_from_plane
+from r2s.geometry.sdf import raycasting_scene
 
 
 @dataclass(frozen=True)
@@ -117,10 +118,20 @@ def _fill(values: np.ndarray, known: np.ndarray, xs: np.ndarray, ys: np.ndarray)
     return out
 
 
-def _support_height(pts: np.ndarray, below: np.ndarray | None, hull_eq: np.ndarray,
-                    margin_m: float, min_points: int = 30, envelope_percentile: float = 95.0,
-                    beside_share: float = 0.2, beside_m: float = 0.003
-                    ) -> tuple[float, np.ndarray | None]:
+def _beside(group: np.ndarray, hull_eq: np.ndarray, z_low: float, margin_m: float,
+            beside_share: float, beside_m: float, min_points: int) -> bool:
+    """True when one other object's points (plane frame) within ``margin_m`` of the
+    footprint rise past the object's lowest observed point ``z_low`` (by ``beside_m``, more
+    than ``beside_share`` of them, at any height): a neighbour standing beside or in front
+    of the object (an occluder hiding its lower part), not a support under it."""
+    near = group[(footprint_sdf(hull_eq, group[:, :2]) < margin_m) & (group[:, 2] > margin_m / 2)]
+    return len(near) >= min_points and bool(np.mean(near[:, 2] > z_low + beside_m) > beside_share)
+
+
+def _support_height(pts: np.ndarray, below: np.ndarray | list[np.ndarray] | None,
+                    hull_eq: np.ndarray, margin_m: float, min_points: int = 30,
+                    envelope_percentile: float = 95.0, beside_share: float = 0.2,
+                    beside_m: float = 0.003) -> tuple[float, np.ndarray | None]:
     """Height of what the object stands on, as a plane ``z = a x + b y + c`` or 0.
 
     Candidates are other objects' points under the footprint (grown by ``margin_m``) and
@@ -130,12 +141,19 @@ def _support_height(pts: np.ndarray, below: np.ndarray | None, hull_eq: np.ndarr
     support under it: a support's top is below everything seen of what rests on it). The
     plane fitted to them is raised
     to their ``envelope_percentile`` (what rests on a curved surface rests on its top),
-    capped at the object's own lowest observed point. Returns (min height over the
-    candidates, coefficients (3,) or None for the support plane itself).
+    capped at the object's own lowest observed point. ``below`` given as a list (one array
+    per other object) is judged per object first: an object whose points near the
+    footprint rise past this one's lowest observed point at any height (:func:`_beside`)
+    is left out, whatever part of it lies lower. Returns (min height over the candidates,
+    coefficients (3,) or None for the support plane itself).
     """
+    z_low = float(np.percentile(pts[:, 2], 1))
+    if isinstance(below, list):
+        kept = [g for g in below if len(g) and not _beside(g, hull_eq, z_low, margin_m,
+                                                           beside_share, beside_m, min_points)]
+        below = np.concatenate(kept) if kept else None
     if below is None or len(below) < min_points:
         return 0.0, None
-    z_low = float(np.percentile(pts[:, 2], 1))
     sel = below[(footprint_sdf(hull_eq, below[:, :2]) < margin_m)
                 & (below[:, 2] < z_low + margin_m) & (below[:, 2] > margin_m / 2)]
     if len(sel) < min_points or np.mean(sel[:, 2] > z_low + beside_m) > beside_share:
@@ -153,6 +171,28 @@ def _support_height(pts: np.ndarray, below: np.ndarray | None, hull_eq: np.ndarr
     return float(sel[:, 2].min()), coef
 
 
+def _tops_below(meshes_world: Sequence[trimesh.Trimesh], plane_from_world: np.ndarray,
+                gx: np.ndarray, gy: np.ndarray, ceiling: np.ndarray) -> np.ndarray:
+    """(nx, ny) per grid column (plane frame, centres ``gx``, ``gy``) the highest top
+    surface of the given meshes that lies below ``ceiling`` (nx, ny), 0 where none does.
+    A mesh whose top in a column reaches the ceiling stands beside or in front of the
+    object there, not under it, and does not count in that column."""
+    import open3d as o3d  # heavy import, only where needed
+
+    out = np.zeros(gx.shape)
+    start = max(float(np.nanmax(ceiling)), 0.0) + 1.0
+    rays = np.zeros(gx.shape + (6,), dtype=np.float32)
+    rays[..., 0], rays[..., 1], rays[..., 2], rays[..., 5] = gx, gy, start, -1.0
+    for mesh in meshes_world:
+        local = transform_points(plane_from_world, np.asarray(mesh.vertices))
+        scene = raycasting_scene(local, np.asarray(mesh.faces))
+        t_hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        top = start - t_hit.astype(np.float64)
+        below = np.isfinite(top) & (top < ceiling) & (top > 0.0)
+        out = np.where(below, np.maximum(out, top), out)
+    return out
+
+
 def drop_isolated(points: np.ndarray, k: int = 8, factor: float = 4.0) -> np.ndarray:
     """(N,) bool: points whose k-th neighbour is no farther than ``factor`` times the
     median k-th-neighbour distance (mixed "flying" pixels at depth edges are isolated)."""
@@ -166,13 +206,15 @@ def drop_isolated(points: np.ndarray, k: int = 8, factor: float = 4.0) -> np.nda
 
 def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
                          plane_normal: np.ndarray, colors: np.ndarray | None = None,
-                         cell_m: float = 0.003, below_points_world: np.ndarray | None = None,
+                         cell_m: float = 0.003,
+                         below_points_world: np.ndarray | list[np.ndarray] | None = None,
                          max_cells: int = 160, median_px: int = 3,
                          hull_margin_m: float = 0.0, outlier_factor: float = 4.0,
                          view: CarveView | None = None,
                          extend_fraction: float = EXTEND_FRACTION,
                          extend_max_m: float = EXTEND_MAX_M,
-                         exclude: Callable[[np.ndarray], np.ndarray] | None = None
+                         exclude: Callable[[np.ndarray], np.ndarray] | None = None,
+                         under_meshes_world: Sequence[trimesh.Trimesh] = ()
                          ) -> CompletedShape:
     """Complete a watertight mesh from one partial view of an object on a plane.
 
@@ -182,8 +224,10 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
     plane_point, plane_normal : (3,) the support plane (normal up).
     colors : (N, 3) uint8 colour of each point, or None.
     cell_m : grid cell size (grown so no side has more than ``max_cells`` cells).
-    below_points_world : (M, 3) other objects' observed points; those under the footprint
-        and below this object raise its base (an object standing on another one).
+    below_points_world : (M, 3) other objects' observed points, or a list of them, one
+        (M_k, 3) array per object; those under the footprint and below this object raise
+        its base (an object standing on another one). Per object, one that rises past
+        this object's lowest observed point near its footprint is beside it, not under it.
     median_px : size of the median filter that clips spikes of the top heights (1 = none).
     hull_margin_m : grow the footprint by this much; a fraction of the pixel footprint on
         the surface makes up for the outermost samples lying inside the true outline.
@@ -195,6 +239,10 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
         into space hidden by something nearer (with a view; 0 = not at all).
     exclude : world points (M, 3) -> (M,) bool, space another object owns
         (:func:`r2s.geometry.hidden_partition.exclusion`), removed like seen free space.
+    under_meshes_world : other objects' closed meshes (world frame). In every column where
+        one's top surface lies below this object's top (by more than two cells), this
+        object's base is raised onto it: what lies across other objects rests on them
+        instead of reaching down to the table between and through them.
 
     Returns
     -------
@@ -243,13 +291,19 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
     top = _fill(top, known, xs, ys)
 
     below = None
-    if below_points_world is not None and len(below_points_world):
+    if isinstance(below_points_world, (list, tuple)):
+        below = [transform_points(plane_from_world, np.asarray(g, dtype=np.float64).reshape(-1, 3))
+                 for g in below_points_world]
+    elif below_points_world is not None and len(below_points_world):
         below = transform_points(plane_from_world, below_points_world)
     _, coef = _support_height(pts, below, hull.equations, margin_m=0.01)
     if coef is None:
         bottom = np.zeros_like(top)
     else:
         bottom = np.clip(coef[0] * gx + coef[1] * gy + coef[2], 0.0, None)
+    if len(under_meshes_world):
+        bottom = np.maximum(bottom, _tops_below(under_meshes_world, plane_from_world, gx, gy,
+                                                top - 2 * cell))
     # keep at least two cells of material in every column
     top = np.maximum(top, bottom + 2 * cell)
     inside_xy = -sdf

@@ -15,7 +15,9 @@ against the view with the same measures as ``evaluate`` (:mod:`r2s.metrics.obser
 :func:`choose` keeps the prior unless the completion is better on all three by a margin
 (:class:`ChoiceMargins`, calibrated in docs/realistic.md): a prior carries the hidden side
 that a completion can only guess, so it is replaced only where the view clearly disagrees
-with it.
+with it. The view includes one more fact: the object was at rest. For an object standing
+alone on the table (:func:`stands_alone_on_table`), a prior that rolls away when set down
+there alone gives way to a completion that rests and scores about as well (:class:`RestRule`).
 """
 
 from __future__ import annotations
@@ -93,10 +95,48 @@ def score_in_view(candidate_world: trimesh.Trimesh, obj_id: int,
                      free_space=float(violation.sum()) / mask_px if mask_px else 0.0)
 
 
+@dataclass(frozen=True)
+class Rest:
+    """How far a candidate went when set down alone on the table and rolled out
+    (:func:`r2s.sim.rest_on_plane.rest_on_plane`): ``moved_m`` (m), ``turned_deg``."""
+
+    moved_m: float
+    turned_deg: float
+
+
+@dataclass(frozen=True)
+class RestRule:
+    """When a prior that does not rest where it was seen gives way to a completion that does.
+
+    moved_m, turned_deg : a candidate rests when, set down alone on the table, it moved and
+        turned less than these in the rollout;
+    iou_loss, ucd_loss_mm, free_space_slack : how much worse than the prior's the
+        completion's view score may be (IoU lower, UCD higher, free space higher).
+
+    The prior was registered to what the camera saw, and the camera saw the object at rest:
+    a prior that rolls away from that pose has its underside or its proportions wrong
+    (docs/realistic.md, "Priors that do not rest").
+    """
+
+    moved_m: float = 0.010
+    turned_deg: float = 15.0
+    iou_loss: float = 0.02
+    ucd_loss_mm: float = 0.5
+    free_space_slack: float = 0.02
+
+    def rests(self, rest: Rest) -> bool:
+        return rest.moved_m < self.moved_m and rest.turned_deg < self.turned_deg
+
+
 def choose(prior: ViewScore, completion: ViewScore,
-           margins: ChoiceMargins = ChoiceMargins()) -> tuple[str, str]:
-    """``("prior" | "completion", reason)``: the completion only where it is better than
-    the prior on IoU, UCD and free space by ``margins``."""
+           margins: ChoiceMargins = ChoiceMargins(),
+           rest: tuple[Rest, Rest] | None = None,
+           rest_rule: RestRule = RestRule()) -> tuple[str, str]:
+    """``("prior" | "completion", reason)``: the completion where it is better than the
+    prior on IoU, UCD and free space by ``margins``; or, given ``rest`` (how far the prior
+    and the completion went when set down alone on the table, :class:`Rest`), where the
+    prior does not rest and the completion does while agreeing with the view about as well
+    (``rest_rule``)."""
     iou_gain = completion.iou - prior.iou
     ucd_gain = prior.ucd_mm - completion.ucd_mm
     fs_loss = completion.free_space - prior.free_space
@@ -106,4 +146,54 @@ def choose(prior: ViewScore, completion: ViewScore,
     if (iou_gain >= margins.iou_gain and ucd_gain >= margins.ucd_gain_mm
             and fs_loss <= margins.free_space_slack):
         return "completion", numbers
+    if rest is not None:
+        prior_rest, completion_rest = rest
+        if (not rest_rule.rests(prior_rest) and rest_rule.rests(completion_rest)
+                and iou_gain >= -rest_rule.iou_loss and ucd_gain >= -rest_rule.ucd_loss_mm
+                and fs_loss <= rest_rule.free_space_slack):
+            return "completion", (f"the prior does not rest where it was seen (alone on the "
+                                  f"table it moved {1000 * prior_rest.moved_m:.0f} mm and "
+                                  f"turned {prior_rest.turned_deg:.0f} deg), the completion "
+                                  f"does; {numbers}")
     return "prior", numbers
+
+
+def stands_alone_on_table(candidate_world: trimesh.Trimesh,
+                          others_world: Sequence[trimesh.Trimesh], plane_point: np.ndarray,
+                          plane_normal: np.ndarray, contact_m: float = 0.010,
+                          samples: int = 2000) -> bool:
+    """True when the candidate (world-frame mesh) stands on the table plane with nothing
+    else under it: its lowest point is within ``contact_m`` of the plane (above or below),
+    and no surface sample of another object lies inside its footprint (its outline
+    projected on the plane) lower than ``contact_m`` above its lowest point. An object on a
+    plate, or leaning on a neighbour, is not alone: a rest test on the bare table says
+    nothing about it."""
+    from scipy.spatial import Delaunay
+
+    normal = np.asarray(plane_normal, dtype=float)
+    normal = normal / np.linalg.norm(normal)
+    origin = np.asarray(plane_point, dtype=float)
+    vertices = np.asarray(candidate_world.vertices)
+    heights = (vertices - origin) @ normal
+    lowest = float(heights.min())
+    if abs(lowest) > contact_m:
+        return False
+    u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(normal, u)
+    flat = np.c_[(vertices - origin) @ u, (vertices - origin) @ v]
+    try:
+        footprint = Delaunay(flat)
+    except Exception:  # degenerate outline (a flat sliver seen edge-on): no footprint test
+        return True
+    for other in others_world:
+        if len(other.faces) == 0:
+            continue
+        pts, _ = trimesh.sample.sample_surface(other, samples, seed=3)
+        low = (pts - origin) @ normal < lowest + contact_m
+        if not np.any(low):
+            continue
+        rel = pts[low] - origin
+        if np.any(footprint.find_simplex(np.c_[rel @ u, rel @ v]) >= 0):
+            return False
+    return True

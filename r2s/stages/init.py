@@ -12,7 +12,9 @@ still does not match its mask is replaced by the completion. Then, per object st
 holding a prior (``prior_choice``, 'auto' by default), the object is also completed from
 the observation, both are scored against the view (silhouette IoU with the others
 z-buffered, UCD, free space; geometry/prior_choice.py) and the completion replaces the
-prior only where it is better on all three by calibrated margins (a warning line says so).
+prior only where it is better on all three by calibrated margins, or where the prior of an
+object standing alone on the table rolls away when set down there and the completion rests
+at about the same view score (a warning line says which).
 No dynamics here: settling and stability are left for the later stages.
 
 Object frames: a registered prior keeps its own axes, with the origin moved to the centre
@@ -22,7 +24,9 @@ its footprint, on its base. Extra keys per object in ``state.json``: ``icp_fitne
 ``icp_rmse_m`` (for completed objects: of the observed points against the completed
 surface), ``scale``, ``observed_points``, ``num_observed_points``; for an object given a
 prior, ``prior_choice``: ``chosen`` ("prior" or "completion") and the ``prior``'s and the
-``completion``'s scores (``iou``, ``ucd_mm``, ``free_space``).
+``completion``'s scores (``iou``, ``ucd_mm``, ``free_space``) and, for an object standing alone
+on the table, ``rest_alone``: how far each moved (``moved_mm``) and turned (``turned_deg``)
+when set down there alone.
 
 Writes ``init/``: ``state.json``, ``meshes/<id>.glb`` (object frame, coloured),
 ``points/<id>.npy`` (the object's observed points, world frame, float32 (N, 3)),
@@ -34,7 +38,7 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
-from typing import Callable, Literal, Optional
+from typing import Callable, Literal, Optional, Sequence
 
 import numpy as np
 import trimesh
@@ -53,7 +57,8 @@ from r2s.geometry.free_space import view_constraint
 from r2s.geometry.mask_edges import foreign_rim_pixels
 from r2s.geometry.point_cleanup import object_point_mask
 from r2s.geometry.overlay import fit_overlay, render_instances
-from r2s.geometry.prior_choice import ChoiceMargins, choose, score_in_view
+from r2s.geometry.prior_choice import (ChoiceMargins, Rest, choose, score_in_view,
+                                       stands_alone_on_table)
 from r2s.geometry.prior_refine import RefinedPose, RefineOptions, refine_axis_scale
 from r2s.geometry.prior_silhouette import SilhouetteFitOptions, fit_priors_to_view
 from r2s.geometry.plane import PlaneFit, fit_plane_ransac, signed_distance
@@ -154,6 +159,13 @@ class Options(StageOptions):
     prior_choice_free_space_slack: float = Field(0.02, ge=0, description="'auto': ... and "
                                                  "its free-space violation may exceed the "
                                                  "prior's by at most this.")
+    prior_choice_rest: bool = Field(True, description="'auto': also set the prior and the "
+                                    "completion of an object standing alone on the table "
+                                    "down there and roll each out for 1 s; a prior that "
+                                    "moves >= 10 mm or turns >= 15 deg gives way to a "
+                                    "completion that rests and is at most 0.02 worse in "
+                                    "silhouette IoU, 0.5 mm in UCD and 0.02 in free space "
+                                    "(geometry/prior_choice.py RestRule).")
     completion_cell_m: float = Field(0.003, gt=0, description="Grid cell of the height-field "
                                      "completion of objects without a prior.")
     completion_hull_margin_px: float = Field(0.25, ge=0, description="Grow a completed "
@@ -174,6 +186,11 @@ class Options(StageOptions):
         True, description="Where two completed objects fill the same hidden space, give it "
                           "to the one whose observed surface is nearer (a prior keeps all "
                           "of its inside; see geometry/hidden_partition.py).")
+    completion_rest_on_others: bool = Field(
+        True, description="When a completed object is completed again without the hidden "
+                          "space others own: in every column where another object's top "
+                          "lies below its top, its base rests on that object instead of "
+                          "reaching down to the table (see geometry/completion.py).")
     completion_extend_fraction: float = Field(
         0.0, ge=0, description="Sweep a completed object's footprint towards the camera "
                                "into space hidden by nearer things, by up to this fraction "
@@ -356,11 +373,24 @@ def _choose_prior_or_completion(scene: InputScene, observed: dict, shapes: dict[
         scores = [score_in_view(candidate, i, others, observed[i][0], cam.K,
                                 cam.world_from_camera, scene.depth_m, scene.masks)
                   for candidate in (posed[i], _posed(*completions[i]))]
-        chosen, numbers = choose(scores[0], scores[1], margins)
+        rest = None
+        if o.prior_choice_rest and stands_alone_on_table(
+                posed[i], [m for _, m in others], plane.point, plane.normal):
+            try:
+                rest = tuple(_rest_alone(mesh, pose, plane)
+                             for mesh, pose in (shapes[i][:2], completions[i]))
+            except ValueError:  # a flat or degenerate candidate: the view decides alone
+                rest = None
+        chosen, numbers = choose(scores[0], scores[1], margins, rest)
         if o.prior_choice != "auto":
             chosen = o.prior_choice
         records[i] = {"chosen": chosen, "prior": scores[0].as_dict(),
                       "completion": scores[1].as_dict()}
+        if rest is not None:
+            records[i]["rest_alone"] = {
+                name: {"moved_mm": round(1000 * r.moved_m, 1),
+                       "turned_deg": round(r.turned_deg, 1)}
+                for name, r in zip(("prior", "completion"), rest)}
         if chosen == "completion":
             flags.append(f"object {i}: its prior was replaced by the completion from the "
                          f"observation ({numbers})")
@@ -370,15 +400,25 @@ def _choose_prior_or_completion(scene: InputScene, observed: dict, shapes: dict[
     return records
 
 
+def _rest_alone(mesh: trimesh.Trimesh, world_from_object: np.ndarray, plane: PlaneFit
+                ) -> Rest:
+    """How far ``mesh`` (object frame) at ``world_from_object`` goes when set down alone on
+    the support plane and rolled out (sim/rest_on_plane.py)."""
+    from r2s.sim.rest_on_plane import rest_on_plane  # pybullet: only where a prior is tested
+
+    r = rest_on_plane(mesh, world_from_object, plane.point, plane.normal)
+    return Rest(moved_m=r.moved_m, turned_deg=r.turned_deg)
+
+
 def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneFit,
-              o: Options, exclude: Optional[Callable[[np.ndarray], np.ndarray]] = None
-              ) -> tuple[trimesh.Trimesh, np.ndarray]:
+              o: Options, exclude: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+              under: Sequence[trimesh.Trimesh] = ()) -> tuple[trimesh.Trimesh, np.ndarray]:
     """A closed, coloured mesh completed from the observation (object frame) and its pose.
     ``observed``: id -> (points, pixels) of every object; the others' points are what the
-    object may stand on."""
+    object may stand on; ``under``: other objects' meshes (world frame) it may lie across
+    (its base rests on their tops, column by column)."""
     pts, pix = observed[spec.id]
-    rest = [observed[j][0] for j in observed if j != spec.id]
-    others = np.concatenate(rest) if rest else None
+    others = [observed[j][0] for j in sorted(observed) if j != spec.id] or None
     cam = scene.camera
     depth = scene.depth_m[pix[:, 0], pix[:, 1]]
     pixel_m = float(np.median(depth)) / float(cam.K[0, 0])
@@ -397,7 +437,9 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
                                      hull_margin_m=o.completion_hull_margin_px * pixel_m,
                                      view=view,
                                      extend_fraction=o.completion_extend_fraction,
-                                     exclude=exclude)
+                                     exclude=exclude,
+                                     under_meshes_world=under if o.completion_rest_on_others
+                                     else ())
     except ValueError as exc:
         raise StageError(f"object {spec.id}: completion failed ({exc})") from None
     return shape.mesh, shape.world_from_object
@@ -454,8 +496,9 @@ def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple
     for spec in scene.objects:
         if spec.id not in redo:
             continue
+        under = [posed[j] for j in shapes if j != spec.id]
         mesh, world_from_object = _complete(scene, spec, observed, plane, o,
-                                            exclude=redo[spec.id])
+                                            exclude=redo[spec.id], under=under)
         shapes[spec.id] = (mesh, world_from_object, None)
 
 
