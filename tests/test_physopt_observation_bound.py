@@ -104,3 +104,14 @@ def test_bounded_rounds_that_leave_it_moving_are_redone_without_the_bound():
     assert settings.moving(drifts) == []
     assert log["bounded_attempt_moving"] == [2]
     assert out[2].world_from_object[2, 3] == pytest.approx(0.03, abs=0.003)  # on the table
+
+
+@pytest.mark.slow
+def test_the_unbounded_fallback_moves_only_what_still_moves():
+    # the fallback settles the toppling cube onto the table, and the lower cube, which
+    # rested where it was seen, keeps its pose exactly (its settling moves are not kept)
+    settings = RepairSettings(com_repair=False)
+    poses, out, drifts, bound, log = _overhang(settings)
+    assert any(r.get("round") == "fallback" for r in log["rounds"])
+    assert np.array_equal(out[1].world_from_object, poses[1])
+    assert bound.beyond({i: p.world_from_object for i, p in out.items()}) == [2]

@@ -203,12 +203,15 @@ def _drift_log(drifts: Drift) -> dict[str, list]:
 
 def repair_round(make_world: MakeWorld, params: Params, order: list[int], movers: list[int],
                  result: Drift, rnd: int, settings: RepairSettings, log: dict,
-                 bound: Optional[ObservationBound] = None) -> Params:
+                 bound: Optional[ObservationBound] = None, movers_only: bool = False
+                 ) -> Params:
     """One round on the movers: COM towards the support, friction to its bound, then a
-    quasi-static settle of the whole scene (:func:`settle_round`). Returns the new
-    parameters."""
+    quasi-static settle of the whole scene (:func:`settle_round`), whose moves are kept for
+    every object or, with ``movers_only``, for the movers only (the others keep their
+    poses). Returns the new parameters."""
     params = mass_and_friction_repair(make_world, params, movers, result, rnd, settings, log)
-    return settle_round(make_world, params, order, rnd, settings, log, bound)
+    return settle_round(make_world, params, order, rnd, settings, log, bound,
+                        only=set(movers) if movers_only else None)
 
 
 def mass_and_friction_repair(make_world: MakeWorld, params: Params, movers: list[int],
@@ -383,7 +386,10 @@ def _repair_phase(make_world: MakeWorld, best: Kept, order: list[int],
         before = params
         name = f"{label}{rnd}" if label else rnd
         if bound is None:
-            params = repair_round(make_world, params, order, movers, result, rnd, settings, log)
+            # after bounded phases (label "u"), the unbounded rounds move only what still
+            # moves: an object that rests within the observation tolerance keeps its pose
+            params = repair_round(make_world, params, order, movers, result, rnd, settings,
+                                  log, movers_only=bool(label))
         else:
             # least observation change first: COM and friction, checked before any settling,
             # which then moves only what still moves
