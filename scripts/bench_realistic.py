@@ -23,6 +23,8 @@ Usage:
   python scripts/bench_realistic.py --scenes 6 --out docs/realistic.md
   python scripts/bench_realistic.py --scenes 2 --count 4     # a quick check
   python scripts/bench_realistic.py --scenes 0 --peer ../shared/seed_demo/ycb5
+  python scripts/bench_realistic.py --root bench/heldout --scenes 4 --count 8 --seed 77 \
+      --block heldout --out docs/realistic.md     # scenes nothing was tuned on
 Scenes go to bench/realistic/; a scene whose evaluate/metrics.json exists is not rerun
 (``--rerun`` reruns r2s on every scene; ``--table-only`` only rebuilds the table).
 """
@@ -224,6 +226,9 @@ def main() -> None:
                     help="make and run only this set (the table then has only its rows)")
     ap.add_argument("--peer", type=Path, action="append", default=[],
                     help="a scene made elsewhere (input/ and gt/), run in both sets")
+    ap.add_argument("--block", default="bench_realistic",
+                    help="name of the generated block in --out (another name keeps a second "
+                         "table, e.g. the held-out scenes, beside the benchmark's)")
     args = ap.parse_args()
     for peer in args.peer:
         if not (peer / "input").is_dir():
@@ -249,7 +254,7 @@ def main() -> None:
     text = table(rows)
     print(text)
     if args.out:
-        write_generated_block(args.out, "bench_realistic", text)
+        write_generated_block(args.out, args.block, text)
 
 
 if __name__ == "__main__":
