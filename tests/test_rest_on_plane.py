@@ -22,7 +22,7 @@ def test_a_box_lying_flat_rests_and_is_set_down_from_above():
     # set down by 20 mm less the gap; then it only drops the 0.5 mm gap
     assert abs(r.lift_m - (SET_DOWN_GAP_M - 0.020)) < 1e-9
     assert r.moved_m < 1.0e-3 and r.turned_deg < 0.5
-    assert r.rests(moved_m=0.010, turned_deg=15.0)
+    assert RestRule(moved_m=0.010, turned_deg=15.0).rests(Rest(r.moved_m, r.turned_deg))
 
 
 def test_a_flat_box_tilted_on_its_edge_falls_back_onto_its_face():
@@ -31,7 +31,7 @@ def test_a_flat_box_tilted_on_its_edge_falls_back_onto_its_face():
     slab = trimesh.creation.box((0.10, 0.10, 0.02))
     r = rest_on_plane(slab, _pose([0.0, 0.0, 0.05], tilt_deg=30.0), *TABLE)
     assert abs(r.turned_deg - 30.0) < 2.0
-    assert not r.rests(moved_m=0.010, turned_deg=15.0)
+    assert not RestRule(moved_m=0.010, turned_deg=15.0).rests(Rest(r.moved_m, r.turned_deg))
 
 
 def test_rest_rule_swaps_a_rolling_prior_only_for_a_resting_completion_as_good_in_view():

@@ -103,6 +103,9 @@ class Rest:
     moved_m: float
     turned_deg: float
 
+    def as_dict(self) -> dict:
+        return {"moved_mm": round(1000 * self.moved_m, 1), "turned_deg": round(self.turned_deg, 1)}
+
 
 @dataclass(frozen=True)
 class RestRule:

@@ -7,7 +7,8 @@ centre of mass is wrong. :func:`rest_on_plane` measures how far it goes.
 
 Resting on a plane involves only the shape's convex hull (the plane touches nothing
 else), so the body is the hull of the mesh, with the centre of mass of the mesh itself
-(uniform density; the hull's where the mesh does not enclose a volume). Gravity points
+(uniform density; :func:`r2s.geometry.mass_properties.mass_properties`, the hull's where the
+mesh is not closed). Gravity points
 against the plane's normal: the object was seen at rest on this plane, whatever the
 declared gravity says.
 
@@ -25,6 +26,7 @@ import numpy as np
 import pybullet as pb
 import trimesh
 
+from r2s.geometry.mass_properties import mass_properties
 from r2s.sim.pybullet_bodies import (TIME_STEP_S, add_rigid_body, add_support_plane,
                                      body_world_from_object, connect_direct)
 
@@ -51,23 +53,6 @@ class RestOnPlane:
     turned_deg: float
     lift_m: float
 
-    def rests(self, moved_m: float, turned_deg: float) -> bool:
-        """True when it moved and turned less than the given tolerances."""
-        return self.moved_m < moved_m and self.turned_deg < turned_deg
-
-    def as_dict(self) -> dict:
-        return {"moved_mm": round(1000.0 * self.moved_m, 1),
-                "turned_deg": round(self.turned_deg, 1),
-                "lift_mm": round(1000.0 * self.lift_m, 1)}
-
-
-def centre_of_mass(mesh: trimesh.Trimesh) -> np.ndarray:
-    """(3,) the uniform-density centre of mass of ``mesh`` (object frame), or of its convex
-    hull where the mesh does not enclose a positive volume."""
-    if mesh.is_watertight and mesh.volume > 1e-12:
-        return np.asarray(mesh.center_mass, dtype=float)
-    return np.asarray(mesh.convex_hull.center_mass, dtype=float)
-
 
 def rest_on_plane(mesh: trimesh.Trimesh, world_from_object: np.ndarray,
                   plane_point: np.ndarray, plane_normal: np.ndarray,
@@ -91,7 +76,7 @@ def rest_on_plane(mesh: trimesh.Trimesh, world_from_object: np.ndarray,
     world = np.asarray(hull.vertices) @ pose[:3, :3].T + pose[:3, 3]
     lift = SET_DOWN_GAP_M - float(np.min((world - np.asarray(plane_point)) @ normal))
     pose[:3, 3] += lift * normal
-    com = centre_of_mass(mesh)
+    com = mass_properties(mesh).com_in_object
     client = connect_direct()
     try:
         pb.setGravity(*(-9.81 * normal), physicsClientId=client)

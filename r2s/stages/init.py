@@ -387,10 +387,8 @@ def _choose_prior_or_completion(scene: InputScene, observed: dict, shapes: dict[
         records[i] = {"chosen": chosen, "prior": scores[0].as_dict(),
                       "completion": scores[1].as_dict()}
         if rest is not None:
-            records[i]["rest_alone"] = {
-                name: {"moved_mm": round(1000 * r.moved_m, 1),
-                       "turned_deg": round(r.turned_deg, 1)}
-                for name, r in zip(("prior", "completion"), rest)}
+            records[i]["rest_alone"] = {name: r.as_dict()
+                                        for name, r in zip(("prior", "completion"), rest)}
         if chosen == "completion":
             flags.append(f"object {i}: its prior was replaced by the completion from the "
                          f"observation ({numbers})")
