@@ -7,7 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from r2s.geometry.mask_fragments import boundary_evidence, fragment_parents, merge_masks
+import pytest
+
+from r2s.geometry.mask_fragments import (MAX_COLOUR_DISTANCE, MAX_COLOUR_SET_DISTANCE,
+                                         boundary_evidence, fragment_parents, merge_masks)
 
 H, W = 80, 120
 
@@ -124,3 +127,60 @@ def test_a_thin_split_with_depth_missing_along_the_cut_is_one_object():
     assert parents and parents[6][0] == 3
     depth[35:38, 79:81] = np.nan                                       # 2 rows read
     assert fragment_parents(masks, depth, rgb) == {}
+
+
+def _checker(colour_a, colour_b, cell_px: int = 6) -> np.ndarray:
+    """(H, W, 3) uint8 checkerboard of two colours (a printed, textured surface)."""
+    rows, cols = np.indices((H, W))
+    board = ((rows // cell_px + cols // cell_px) % 2).astype(bool)
+    rgb = np.empty((H, W, 3), np.uint8)
+    rgb[~board], rgb[board] = colour_a, colour_b
+    return rgb
+
+
+def test_a_split_textured_object_is_one_object():
+    """A striped black-and-white face (a printed box) cut where its left piece is 70 %
+    white and its right piece 70 % black: the mean colours differ by
+    sqrt(3) * 0.4 * 230 ~ 159, far more than ``MAX_COLOUR_DISTANCE``, but both strips hold
+    exactly the same two colours (nearest-colour distance 0), so the pieces are one
+    object."""
+    masks = np.zeros((H, W), np.int32)
+    masks[20:60, 20:70], masks[20:60, 70:100] = 1, 5
+    white, black = (250, 250, 250), (20, 20, 20)
+    rows = np.arange(H) % 10
+    rgb = np.empty((H, W, 3), np.uint8)
+    rgb[:, :70] = np.where((rows < 7)[:, None, None], white, black)[:, :1]
+    rgb[:, 70:] = np.where((rows < 3)[:, None, None], white, black)[:, :1]
+    ev = boundary_evidence(masks, _plane_depth(), rgb)[0]
+    assert ev.colour_distance == pytest.approx(np.sqrt(3) * 0.4 * 230, abs=3.0)
+    assert ev.colour_set_distance == pytest.approx(0.0, abs=1e-9)
+    assert fragment_parents(masks, _plane_depth(), rgb)[5][0] == 1
+
+
+def test_touching_textured_objects_of_different_colours_are_not_merged():
+    """Two checkered boxes side by side at the same depth, red/white and blue/green: the
+    nearest colours across the boundary are 80 or more apart (white to green is
+    sqrt(250^2 + 70^2 + 250^2) ~ 360, red to blue ~ 320 ...), so they stay two objects."""
+    masks = np.zeros((H, W), np.int32)
+    masks[20:60, 20:70], masks[20:60, 70:100] = 1, 2
+    left = _checker((220, 30, 30), (250, 250, 250))
+    right = _checker((30, 30, 220), (30, 180, 30))
+    rgb = np.where((np.arange(W) < 70)[None, :, None], left, right).astype(np.uint8)
+    ev = boundary_evidence(masks, _plane_depth(), rgb)[0]
+    assert ev.continuous_fraction == 1.0 and ev.colour_set_distance > 3 * MAX_COLOUR_SET_DISTANCE
+    assert fragment_parents(masks, _plane_depth(), rgb) == {}
+
+
+def test_a_checkered_ball_beside_a_grey_box_of_its_mean_colour_is_not_merged():
+    """Left a grey box (135, 135, 135), right a black-and-white checker (20 / 250) whose
+    mean is within a few units of that grey: the means agree, but no colour of the
+    checker is near the grey (median nearest distance sqrt(3) * 115 ~ 199), so they are
+    two objects."""
+    masks = np.zeros((H, W), np.int32)
+    masks[20:60, 20:70], masks[20:60, 70:100] = 1, 2
+    rgb = _checker((250, 250, 250), (20, 20, 20))
+    rgb[:, :70] = 135
+    ev = boundary_evidence(masks, _plane_depth(), rgb)[0]
+    assert ev.continuous_fraction == 1.0 and ev.colour_distance < MAX_COLOUR_DISTANCE
+    assert ev.colour_set_distance == pytest.approx(np.sqrt(3) * 115, abs=1.0)
+    assert fragment_parents(masks, _plane_depth(), rgb) == {}

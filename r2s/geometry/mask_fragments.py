@@ -11,10 +11,14 @@ image,
   pairs across it (both readings valid) differ by less than ``max(jump_min_m,
   jump_fraction * z)``: the same surface runs on across the cut; two objects that touch
   in the image are mostly at different depths there (one in front of the other);
-- the colour is continuous: the mean colours of the two sides' strips along the boundary
-  (``strip_px`` deep, starting ``BLEED_PX`` in: a mask that bleeds onto its neighbour
-  carries the neighbour's colour and depth in its first pixels) differ by at most ``max_colour_distance`` (RGB,
-  0-255, Euclidean);
+- the colour is continuous: the two sides' strips along the boundary (``strip_px`` deep,
+  starting ``BLEED_PX`` in: a mask that bleeds onto its neighbour carries the neighbour's
+  colour and depth in its first pixels) hold the same colours: the distance from a pixel
+  colour of either strip to the nearest pixel colour of the other (75th percentile) is at most
+  ``MAX_COLOUR_SET_DISTANCE`` (RGB, 0-255, Euclidean; this holds for a textured object, a
+  football or a printed box, whose two pieces' mean colours differ by where the cut runs
+  through the print), or their mean colours are at most ``MAX_COLOUR_DISTANCE`` apart
+  and that distance is at most ``MAX_COLOUR_SET_DISTANCE_WITH_MEANS``;
 - the boundary is long enough to judge (``min_pairs`` valid pairs) and is a real part of
   the smaller piece's outline (``min_outline_fraction``).
 
@@ -38,6 +42,27 @@ JUMP_MIN_M = 0.006
 JUMP_FRACTION = 0.01
 MIN_CONTINUOUS_FRACTION = 0.85
 MAX_COLOUR_DISTANCE = 40.0
+MAX_COLOUR_SET_DISTANCE = 8.0
+"""RGB units: two strips whose colours match this well are one surface whatever their means."""
+MAX_COLOUR_SET_DISTANCE_WITH_MEANS = 40.0
+"""RGB units: close means are not enough when one strip holds colours far from all of the
+other's (a black-and-white football beside a grey box averages to the box's grey).
+Calibration (synthetic RealSense-like scenes, seeds 200-239, 300-319 and 400-419 with 5-8
+objects, and the 10 realistic benchmark scenes; ``scripts/check_mask_fragments.py``):
+split pieces whose means are more than 40 apart had a nearest-colour distance (75th
+percentile) of 2.0-7.5 in 10 of 18 cases, 9.1-43 in the others; split pieces with means
+within 40, at most 27.6; pairs of different objects with a continuous depth boundary,
+11.4 or more (120.9 for the football and the box). One such pair, a padlock beside a
+pudding box (means 17.5 apart, nearest 11.4), is still taken for one object."""
+COLOUR_SET_PERCENTILE = 75.0
+"""The nearest-colour distance is this percentile over both strips' pixels: most of
+either side's colours must be found on the other (a median let a black drill and a
+black-and-white football pass on their shared black)."""
+COLOUR_SET_SAMPLES = 400
+"""At most this many strip pixels per side (every k-th) enter the nearest-colour test:
+the distance shrinks as samples grow, so both sides are capped alike."""
+MIN_STRIP_PX = 8
+"""A strip with fewer pixels past the bleed band is taken whole (bleed band included)."""
 MIN_PAIRS = 8
 MIN_VALID_PAIRS = 4
 MIN_OUTLINE_FRACTION = 0.05
@@ -54,6 +79,8 @@ class BoundaryEvidence:
     boundary_pairs : all 4-neighbour pixel pairs across the boundary (a thin object's split
         is short, and depth is often missing along it).
     colour_distance : RGB distance of the two sides' mean colours along the boundary.
+    colour_set_distance : RGB distance from a strip pixel's colour to the nearest colour
+        of the other side's strip, both ways, its ``COLOUR_SET_PERCENTILE`` percentile.
     outline_fraction : boundary pixels of the smaller id over its outline pixels.
     """
 
@@ -64,16 +91,25 @@ class BoundaryEvidence:
     colour_distance: float
     outline_fraction: float
     boundary_pairs: int
+    colour_set_distance: float
+
+    def colours_continue(self) -> bool:
+        return (self.colour_set_distance <= MAX_COLOUR_SET_DISTANCE
+                or (self.colour_distance <= MAX_COLOUR_DISTANCE
+                    and self.colour_set_distance <= MAX_COLOUR_SET_DISTANCE_WITH_MEANS))
 
     def is_one_object(self) -> bool:
         return (self.pairs >= MIN_VALID_PAIRS and self.boundary_pairs >= MIN_PAIRS
                 and self.continuous_fraction >= MIN_CONTINUOUS_FRACTION
-                and self.colour_distance <= MAX_COLOUR_DISTANCE
+                and self.colours_continue()
                 and self.outline_fraction >= MIN_OUTLINE_FRACTION)
 
     def describe(self) -> str:
+        colours = (f"colours {self.colour_distance:.0f} apart"
+                   if self.colour_distance <= MAX_COLOUR_DISTANCE else
+                   f"the same colours (nearest {self.colour_set_distance:.0f} apart)")
         return (f"depth continuous over {100 * self.continuous_fraction:.0f} % of "
-                f"{self.pairs} boundary pixel pairs, colours {self.colour_distance:.0f} apart")
+                f"{self.pairs} boundary pixel pairs, {colours}")
 
 
 def _pairs(masks: np.ndarray) -> Iterable[tuple[np.ndarray, np.ndarray]]:
@@ -111,12 +147,12 @@ def boundary_evidence(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
         small, large = (i, j) if sizes[i] <= sizes[j] else (j, i)
         window = _pair_window(np.asarray(masks), i, j)
         crop_masks, crop_rgb = np.asarray(masks)[window], np.asarray(rgb)[window]
+        mean_dist, set_dist = _colour_distances(crop_masks, crop_rgb, i, j, strip_px)
         out.append(BoundaryEvidence(
             small_id=int(small), large_id=int(large), pairs=n_valid,
-            continuous_fraction=continuous,
-            colour_distance=_colour_distance(crop_masks, crop_rgb, i, j, strip_px),
+            continuous_fraction=continuous, colour_distance=mean_dist,
             outline_fraction=_outline_fraction(crop_masks, small, large),
-            boundary_pairs=int(sel.sum())))
+            boundary_pairs=int(sel.sum()), colour_set_distance=set_dist))
     return out
 
 
@@ -130,29 +166,42 @@ def _pair_window(masks: np.ndarray, i: int, j: int) -> tuple[slice, slice]:
             slice(max(int(cols.min()) - 1, 0), min(int(cols.max()) + 2, w)))
 
 
-def _colour_distance(masks: np.ndarray, rgb: np.ndarray, i: int, j: int, strip_px: int,
-                     skip_px: int = BLEED_PX) -> float:
-    """RGB distance of the mean colours of each id's pixels between ``skip_px`` and
-    ``skip_px + strip_px`` from the other (the first pixels may be the other's, by bleed)."""
+def _colour_distances(masks: np.ndarray, rgb: np.ndarray, i: int, j: int, strip_px: int,
+                      skip_px: int = BLEED_PX) -> tuple[float, float]:
+    """(RGB distance of the mean colours, :func:`_colour_set_distance`) of each id's pixels
+    between ``skip_px`` and ``skip_px + strip_px`` from the other (the first pixels
+    may be the other's, by bleed); (inf, inf) when a side has no pixels."""
     mi, mj = masks == i, masks == j
     dist_to_j = ndimage.distance_transform_edt(~mj)
     dist_to_i = ndimage.distance_transform_edt(~mi)
     side_i = _strip(mi, dist_to_j, skip_px, strip_px)
     side_j = _strip(mj, dist_to_i, skip_px, strip_px)
     if not side_i.any() or not side_j.any():
-        return float("inf")
+        return float("inf"), float("inf")
     col = np.asarray(rgb, dtype=np.float64)[..., :3]
-    return float(np.linalg.norm(col[side_i].mean(axis=0) - col[side_j].mean(axis=0)))
+    a, b = col[side_i], col[side_j]
+    return float(np.linalg.norm(a.mean(axis=0) - b.mean(axis=0))), _colour_set_distance(a, b)
+
+
+def _colour_set_distance(a: np.ndarray, b: np.ndarray) -> float:
+    """``COLOUR_SET_PERCENTILE`` percentile of the distances from each of (N, 3) colours
+    ``a`` to the nearest of (M, 3) ``b`` and back; each side thinned to at most
+    ``COLOUR_SET_SAMPLES`` (every k-th)."""
+    a = a[::max(1, -(-len(a) // COLOUR_SET_SAMPLES))]
+    b = b[::max(1, -(-len(b) // COLOUR_SET_SAMPLES))]
+    d_ab = np.sqrt(((a[:, None, :] - b[None, :, :]) ** 2).sum(axis=2))
+    return float(np.percentile(np.concatenate([d_ab.min(axis=1), d_ab.min(axis=0)]),
+                               COLOUR_SET_PERCENTILE))
 
 
 def _strip(own: np.ndarray, dist_to_other: np.ndarray, skip_px: int, strip_px: int
            ) -> np.ndarray:
     """(H, W) bool: ``own`` pixels between ``skip_px`` and ``skip_px + strip_px`` from the
-    other id; all those within ``skip_px + strip_px`` when the piece is thinner than that
-    (a sliver: every pixel of it is its own)."""
+    other id; all those within ``skip_px + strip_px`` when fewer than ``MIN_STRIP_PX`` lie
+    past the bleed band (a sliver or a thin split: nearly every pixel of it is its own)."""
     near = own & (dist_to_other <= skip_px + strip_px)
     inner = near & (dist_to_other > skip_px)
-    return inner if inner.any() else near
+    return inner if int(inner.sum()) >= MIN_STRIP_PX else near
 
 
 def _outline_fraction(masks: np.ndarray, small: int, large: int) -> float:

@@ -102,13 +102,35 @@ def com_world(pose: np.ndarray, com: np.ndarray) -> np.ndarray:
     return pose[:3, :3] @ com + pose[:3, 3]
 
 
+REST_SPEED_MPS = 2e-4
+"""Below this linear speed (and ``REST_SPIN_RADPS``) for ``REST_WINDOW_S`` every body is
+at rest: creeping at it for a whole 5 s check would move a body 1 mm, far under
+physopt's 5 mm at-rest tolerance."""
+REST_SPIN_RADPS = 2e-3
+"""Angular counterpart of ``REST_SPEED_MPS`` (0.57 deg over 5 s, against 2 deg)."""
+REST_WINDOW_S = 0.5
+REST_POLL_STEPS = 12
+
+
 def drift(world: World, start: dict[int, np.ndarray], duration_s: float,
-          time_step_s: float = 1.0 / 240.0) -> dict[int, tuple[float, float]]:
+          time_step_s: float = 1.0 / 240.0, stop_at_rest: bool = True
+          ) -> dict[int, tuple[float, float]]:
     """Simulate ``duration_s`` from ``start`` (zero velocity); per object the COM translation
-    (m) and rotation (deg) between the start and the end."""
+    (m) and rotation (deg) between the start and the end.
+
+    With ``stop_at_rest`` the simulation ends early once every body has stayed below
+    ``REST_SPEED_MPS`` and ``REST_SPIN_RADPS`` for ``REST_WINDOW_S`` (polled every
+    ``REST_POLL_STEPS`` steps): the rest of the run could not move anything measurably."""
     world.set_poses(start)
-    for _ in range(int(round(duration_s / time_step_s))):
+    steps = int(round(duration_s / time_step_s))
+    window = int(round(REST_WINDOW_S / time_step_s))
+    quiet = 0
+    for k in range(1, steps + 1):
         pb.stepSimulation(physicsClientId=world.client)
+        if stop_at_rest and k % REST_POLL_STEPS == 0:
+            quiet = quiet + REST_POLL_STEPS if _all_at_rest(world) else 0
+            if quiet >= window:
+                break
     end = world.poses()
     out = {}
     for i, pose in end.items():
@@ -116,6 +138,14 @@ def drift(world: World, start: dict[int, np.ndarray], duration_s: float,
         out[i] = (float(np.linalg.norm(com_world(pose, c) - com_world(start[i], c))),
                   float(rotation_angle_deg(start[i][:3, :3], pose[:3, :3])))
     return out
+
+
+def _all_at_rest(world: World) -> bool:
+    for b in world.body_ids.values():
+        lin, ang = pb.getBaseVelocity(b, physicsClientId=world.client)
+        if np.linalg.norm(lin) > REST_SPEED_MPS or np.linalg.norm(ang) > REST_SPIN_RADPS:
+            return False
+    return True
 
 
 def settle(world: World, start: dict[int, np.ndarray], duration_s: float,
