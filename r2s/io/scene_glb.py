@@ -17,6 +17,7 @@ import numpy as np
 import trimesh
 
 from r2s.io.atomic import atomic_write_bytes
+from r2s.io.mesh_io import fast_png_textures
 from r2s.io.mjcf import plane_rotation
 
 Y_UP_FROM_Z_UP = np.array([[1.0, 0.0, 0.0, 0.0],
@@ -68,8 +69,8 @@ def scene_glb_bytes(objects: Sequence[GlbObject], support: dict) -> bytes:
         scene.add_geometry(o.visual_mesh, node_name=f"object_{int(o.id)}",
                            geom_name=f"object_{int(o.id)}",
                            transform=Y_UP_FROM_Z_UP @ np.asarray(o.world_from_object, float))
-    data = scene.export(file_type="glb")
-    return data
+    fast_png_textures(o.visual_mesh for o in objects)
+    return scene.export(file_type="glb")
 
 
 def write_scene_glb(export_dir: Path, objects: Sequence[GlbObject], support: dict) -> Path:

@@ -18,6 +18,7 @@ import trimesh
 from PIL import Image
 
 from r2s.io.atomic import atomic_write_bytes, atomic_write_text
+from r2s.io.mesh_io import PNG_COMPRESS_LEVEL
 
 
 def texture_image(mesh: trimesh.Trimesh) -> Optional[Image.Image]:
@@ -74,7 +75,7 @@ def write_visual_obj(mesh: trimesh.Trimesh, out_dir: Path, stem: str) -> VisualF
     if image is not None:
         png = f"visual/{stem}.png"
         buf = io.BytesIO()
-        image.convert("RGB").save(buf, format="PNG")
+        image.convert("RGB").save(buf, format="PNG", compress_level=PNG_COMPRESS_LEVEL)
         atomic_write_bytes(Path(out_dir) / png, buf.getvalue())
         mtl.append(f"map_Kd {stem}.png")
     atomic_write_text(Path(out_dir) / f"visual/{stem}.mtl", "\n".join(mtl) + "\n")
