@@ -237,6 +237,33 @@ def test_an_object_lying_across_another_rests_on_it_column_by_column():
     assert _lowest_at(beside, -0.06) == pytest.approx(0.0, abs=0.004)
 
 
+def test_an_object_across_two_supports_spans_the_gap_between_them():
+    """The same board (top seen at 100 mm, 200 x 60 mm) across two 60 mm boxes under its
+    ends (x < -0.04 and x > 0.04): it rests on both, its centre of mass lies between them,
+    so the 80 mm gap under its middle stays empty: the board is 100 - 60 = 40 mm thick
+    there too, and its underside in the gap is at 60 mm (within a cell, 4 mm). With one
+    box only (the test above) its middle still reaches the table. A box 90 mm high under
+    each end would make a 10 mm board, so the gap's underside is at 90 mm."""
+    rng = np.random.default_rng(4)
+    n = 6000
+    board = np.c_[rng.uniform(-0.1, 0.1, n), rng.uniform(-0.03, 0.03, n), np.full(n, 0.10)]
+
+    def boxes(height_m: float) -> list:
+        out = []
+        for x in (-0.07, 0.07):
+            b = trimesh.creation.box((0.06, 0.08, height_m))
+            out.append(b.apply_translation([x, 0.0, height_m / 2]))
+        return out
+
+    across = complete_from_points(board, [0, 0, 0], [0, 0, 1], under_meshes_world=boxes(0.06))
+    assert _lowest_at(across, 0.0) == pytest.approx(0.06, abs=0.004)
+    assert _lowest_at(across, -0.07) == pytest.approx(0.06, abs=0.004)
+    thin = complete_from_points(board, [0, 0, 0], [0, 0, 1], under_meshes_world=boxes(0.09))
+    assert _lowest_at(thin, 0.0) == pytest.approx(0.09, abs=0.004)
+    alone = complete_from_points(board, [0, 0, 0], [0, 0, 1])
+    assert _lowest_at(alone, 0.0) == pytest.approx(0.0, abs=0.004)
+
+
 def _lowest_at(done, x: float) -> float:
     """Height of the completed mesh's underside at (x, 0), cast upward from below."""
     import open3d as o3d

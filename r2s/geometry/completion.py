@@ -71,6 +71,18 @@ class CompletedShape:
 
 
 MIN_PIECE_FRACTION = 0.1
+BRIDGE_MIN_SHARE = 0.1
+"""An object lies across others when their tops carry at least this share of its
+footprint's columns (:func:`_bridge`)."""
+BRIDGE_THICKNESS_PERCENTILE = 50.0
+"""Its thickness is this percentile of (its top - the top under it) over the carried
+columns: where it touches what it lies on, not over a round support's falling rim."""
+BRIDGE_MAX_THICKNESS_RATIO = 0.5
+"""...and it is bridged only when that thickness is at most this share of its height
+over the table in the free columns (a thin thing across others, not a tall one beside a
+low one)."""
+BRIDGE_MAX_POINTS_BELOW = 0.05
+"""...and only when nearly all its observed points lie within the bridged solid."""
 EXTEND_FRACTION = 0.0
 EXTEND_MAX_M = 0.05
 
@@ -193,6 +205,56 @@ def _tops_below(meshes_world: Sequence[trimesh.Trimesh], plane_from_world: np.nd
     return out
 
 
+def _bridge(bottom: np.ndarray, carried: np.ndarray, top: np.ndarray, inside: np.ndarray,
+            gx: np.ndarray, gy: np.ndarray, cell: float, pts: np.ndarray) -> np.ndarray:
+    """(nx, ny) ``bottom`` raised, for an object lying across others, to its thickness
+    below its top in the columns where nothing carries it.
+
+    ``carried``: columns where another object's top lies under this one; ``inside``: the
+    footprint's columns; ``gx``, ``gy``: column centres (plane frame); ``pts``: (N, 3)
+    the object's observed points (plane frame). When at least
+    ``BRIDGE_MIN_SHARE`` of the footprint is carried, the object's thickness is taken
+    where it rests (``BRIDGE_THICKNESS_PERCENTILE`` of top - bottom over the carried
+    columns, at least two cells). The free columns end that far below the top instead of
+    reaching down to the table (a clamp across a can and a box spans the gap between
+    them: it is rigid, and the space under it, which the camera could not see, stays
+    empty) when
+
+    - that thickness is at most ``BRIDGE_MAX_THICKNESS_RATIO`` of the object's median
+      height in the free columns (a thin thing across others, not a tall one beside a
+      low one), and
+    - the bridged solid's centre of mass (column volumes, uniform density) lies over the
+      convex hull of the carried columns: what carries it can hold it. A board with one
+      end on a box and its top level over the table beyond keeps reaching the table;
+    - at most ``BRIDGE_MAX_POINTS_BELOW`` of the object's own observed points lie more
+      than a cell below the bridged underside of their column: a fruit whose side is seen
+      down to 17 mm beside a drill whose first completion reaches under it stands on the
+      table, not on the drill.
+    """
+    on = carried & inside
+    free = inside & ~carried
+    if not free.any() or on.sum() < max(BRIDGE_MIN_SHARE * inside.sum(), 3):
+        return bottom
+    thickness = max(float(np.percentile(top[on] - bottom[on], BRIDGE_THICKNESS_PERCENTILE)),
+                    2 * cell)
+    if thickness > BRIDGE_MAX_THICKNESS_RATIO * float(np.median(top[free])):
+        return bottom
+    bridged = np.where(free, np.maximum(bottom, top - thickness), bottom)
+    weight = np.where(inside, np.clip(top - bridged, 0.0, None), 0.0)
+    com = np.array([np.sum(weight * gx), np.sum(weight * gy)]) / max(float(weight.sum()), 1e-12)
+    try:
+        hull = ConvexHull(np.c_[gx[on], gy[on]])
+    except QhullError:
+        return bottom  # the carried columns are on a line: no area to stand on
+    if np.max(hull.equations[:, :2] @ com + hull.equations[:, 2]) > 0.0:
+        return bottom
+    ix = np.clip(np.rint((pts[:, 0] - gx[0, 0]) / cell).astype(np.int64), 0, gx.shape[0] - 1)
+    iy = np.clip(np.rint((pts[:, 1] - gy[0, 0]) / cell).astype(np.int64), 0, gx.shape[1] - 1)
+    if np.mean(pts[:, 2] < bridged[ix, iy] - cell) > BRIDGE_MAX_POINTS_BELOW:
+        return bottom
+    return bridged
+
+
 def drop_isolated(points: np.ndarray, k: int = 8, factor: float = 4.0) -> np.ndarray:
     """(N,) bool: points whose k-th neighbour is no farther than ``factor`` times the
     median k-th-neighbour distance (mixed "flying" pixels at depth edges are isolated)."""
@@ -302,8 +364,9 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
     else:
         bottom = np.clip(coef[0] * gx + coef[1] * gy + coef[2], 0.0, None)
     if len(under_meshes_world):
-        bottom = np.maximum(bottom, _tops_below(under_meshes_world, plane_from_world, gx, gy,
-                                                top - 2 * cell))
+        under = _tops_below(under_meshes_world, plane_from_world, gx, gy, top - 2 * cell)
+        bottom = np.maximum(bottom, under)
+        bottom = _bridge(bottom, under > 0, top, sdf <= 0, gx, gy, cell, pts)
     # keep at least two cells of material in every column
     top = np.maximum(top, bottom + 2 * cell)
     inside_xy = -sdf
