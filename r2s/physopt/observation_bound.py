@@ -21,6 +21,9 @@ from r2s.scene_model import corrected_state
 
 OBSERVATION_FLAG_KEY = "observation_flag"
 """Per-object key of a state: why a stage flagged the object (absent / None: not flagged)."""
+SEEN_POSE_KEY = "seen_world_from_object"
+"""Per-object key of a state: the (4, 4) pose where the object's current mesh was seen,
+when that is not init's pose (physopt swapped a prior for init's completion of it)."""
 
 
 def displacement_flags(init_world_from_object: Mapping[int, np.ndarray],

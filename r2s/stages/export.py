@@ -25,7 +25,7 @@ from r2s.io.paths import PHYSOPT_COLLISION_DIR, ScenePaths
 from r2s.io.state import read_state
 from r2s.metrics.observation_check import (SEEN_TOLERANCE_DEG, SEEN_TOLERANCE_M, FlagTolerances,
                                           check_observation)
-from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY
+from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, SEEN_POSE_KEY
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.io.manifest import Manifest
 from r2s.io.latest_state import latest_state_stage
@@ -115,7 +115,7 @@ def _bodies_from_state(paths: ScenePaths, stage: str, model: dict
             friction=obj.friction, restitution=obj.restitution, stage=stage,
             provenance=extra.get("provenance"), fitted=_fitted(raw.object(obj.id), obj),
             extra={"source": obj.source, "stage": stage,
-                   **{k: v for k, v in extra.items() if _scalar(v)}},
+                   **{k: v for k, v in extra.items() if _scalar(v) or k == SEEN_POSE_KEY}},
             collision_mesh_path=collision_meshes.get(obj.id),
             collision_pieces_path=_checked_pieces_file(paths, stage, obj.id)))
     return state.gravity, state.support.model_dump(), items
@@ -159,6 +159,9 @@ def _observation(paths: ScenePaths, items: list[ObjectItem], opt: Options, model
                if item.extra.get(OBSERVATION_FLAG_KEY)}
     for item in items:
         item.extra.pop(OBSERVATION_FLAG_KEY, None)
+        seen = item.extra.pop(SEEN_POSE_KEY, None)  # physopt swapped in init's completion
+        if seen is not None and init_poses is not None:
+            init_poses[item.id] = np.asarray(seen, dtype=float)
     meshes = [load_mesh(item.mesh_path) for item in items]
     check = check_observation(
         [m.copy().apply_transform(np.asarray(item.pose)) for m, item in zip(meshes, items)],

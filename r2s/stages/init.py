@@ -68,7 +68,7 @@ from r2s.scene_model import corrected_input
 from r2s.io.atomic import atomic_write_bytes
 from r2s.io.input_scene import InputScene, ObjectSpec, load_input
 from r2s.io.mesh_io import load_mesh, save_mesh
-from r2s.io.paths import ScenePaths
+from r2s.io.paths import INIT_ALTERNATES_DIR, ScenePaths
 from r2s.io.state import DEFAULT_GRAVITY, ObjectState, SceneState, SupportPlane, write_state
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.io.manifest import Manifest
@@ -349,12 +349,13 @@ def _posed(mesh: trimesh.Trimesh, world_from_object: np.ndarray) -> trimesh.Trim
 
 def _choose_prior_or_completion(scene: InputScene, observed: dict, shapes: dict[int, tuple],
                                 plane: PlaneFit, o: Options, flags: list[str]
-                                ) -> dict[int, dict]:
+                                ) -> tuple[dict[int, dict], dict[int, tuple]]:
     """Per object still holding a registered prior: complete it from the observation too,
     score both against the view with every other object as it stands (so the choice does
     not depend on the order of the objects) and, by ``o.prior_choice``, keep one (in
     ``shapes``; geometry/prior_choice.py). Returns id -> {chosen, prior, completion} (the
-    scores), for the state's extra keys."""
+    scores), for the state's extra keys, and id -> (mesh, world_from_object) of the
+    completions of the priors kept (physopt may still swap them in)."""
     cam = scene.camera
     specs = {spec.id: spec for spec in scene.objects}
     posed = {i: _posed(mesh, pose) for i, (mesh, pose, _) in shapes.items()}
@@ -395,7 +396,31 @@ def _choose_prior_or_completion(scene: InputScene, observed: dict, shapes: dict[
     for i, record in records.items():
         if record["chosen"] == "completion":
             shapes[i] = (*completions[i], None)
-    return records
+    return records, {i: completions[i] for i, r in records.items()
+                     if r["chosen"] == "prior" and i in completions}
+
+
+def _save_alternates(out: Path, alternates: dict[int, tuple], scene: InputScene,
+                     plane: PlaneFit) -> None:
+    """``init/alternates/``: the completion of every prior kept (``meshes/<id>.glb``,
+    object frame, and ``state.json`` with its pose), for physopt to swap in where the
+    prior can rest only far from where it was seen."""
+    if not alternates:
+        return
+    (out / INIT_ALTERNATES_DIR / "meshes").mkdir(parents=True, exist_ok=True)
+    labels = {spec.id: spec.label for spec in scene.objects}
+    objects = []
+    for i, (mesh, pose) in sorted(alternates.items()):
+        save_mesh(mesh, out / INIT_ALTERNATES_DIR / "meshes" / f"{i}.glb")
+        objects.append(ObjectState(id=i, label=labels[i], mesh=f"meshes/{i}.glb",
+                                   world_from_object=np.asarray(pose).tolist(),
+                                   source="completed"))
+    write_state(out / INIT_ALTERNATES_DIR, SceneState(
+        stage="init", gravity=list(DEFAULT_GRAVITY),
+        support=SupportPlane(point=[float(v) for v in plane.point],
+                             normal=[float(v) for v in plane.normal],
+                             friction=SUPPORT_FRICTION),
+        objects=objects))
 
 
 def _rest_alone(mesh: trimesh.Trimesh, world_from_object: np.ndarray, plane: PlaneFit
@@ -562,7 +587,8 @@ def run(ctx: StageContext) -> dict:
     ious = _fit_priors(scene, priors, shapes, plane, o)
     _fallback_to_completion(scene, observed, shapes, ious, plane, o, flags)
     ctx.progress("prior or completion", 0.85)
-    choices = _choose_prior_or_completion(scene, observed, shapes, plane, o, flags)
+    choices, alternates = _choose_prior_or_completion(scene, observed, shapes, plane, o, flags)
+    _save_alternates(out, alternates, scene, plane)
     if o.completion_partition_hidden:
         ctx.progress("hidden space shared by completed objects", 0.9)
         _partition_hidden(scene, observed, shapes, plane, o)

@@ -27,15 +27,16 @@ from r2s.io.atomic import atomic_write_json
 from r2s.io.latest_state import latest_state_stage
 from r2s.io.manifest import Manifest
 from r2s.io.mesh_io import load_mesh, welded
-from r2s.io.paths import PHYSOPT_COLLISION_DIR, PHYSOPT_LOG_FILE, ScenePaths
+from r2s.io.paths import (INIT_ALTERNATES_DIR, PHYSOPT_COLLISION_DIR, PHYSOPT_LOG_FILE,
+                          STATE_FILE, ScenePaths)
 from r2s.io.pieces_file import write_pieces
 from r2s.io.state import SceneState, read_state, write_state
 from r2s.physopt.hierarchy import (descendants, lowest_points_m, order_root_to_leaves,
                                    parents_from_graph)
-from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, seen_poses
+from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, SEEN_POSE_KEY, seen_poses
 from r2s.physopt.params import initial_params, keep_previous
 from r2s.physopt.piece_overlap import OverlapShave, shave_overlaps
-from r2s.physopt.solve import physopt_provenance, solve_scene
+from r2s.physopt.solve import Solved, physopt_provenance, solve_scene
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
 from r2s.physical.provenance import user_entries
 from r2s.runner.base import StageContext, StageOptions, StageSpec
@@ -83,6 +84,11 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
                                                  "intruders (up to 2**levels pieces; "
                                                  "docs/realistic.md measured 5 on the seed "
                                                  "demo).")
+    swap_to_completion: bool = Field(
+        True, description="Where a prior object can be made to rest only beyond the "
+                          "observation tolerance, solve the scene again with init's completion "
+                          "of it in its place (init/alternates/) and keep that solution if it "
+                          "leaves fewer objects flagged and no more still moving.")
 
 
 def _source(paths: ScenePaths, options: Options, manifest: Manifest) -> str:
@@ -112,10 +118,7 @@ def run(ctx: StageContext) -> dict:
     pieces = _collision_pieces(ctx, state, meshes, convex, order)
     params = initial_params(state, meshes, pieces.pieces, opt.density_kg_m3, opt.mass_bounds,
                             opt.friction_init, user_entries(paths.root))
-    log: dict = {"source": src, "order": order, "parents": parents,
-                 "objects": {i: [] for i in order}, "rounds": [],
-                 "collision_trim": _trim_log(pieces.reports),
-                 "collision_shave": _shave_log(pieces.shaved)}
+    log = _new_log(src, order, parents, pieces)
     if opt.only is not None:
         if opt.only not in params:
             raise StageError(f"physopt only={opt.only}: no object {opt.only} "
@@ -126,8 +129,13 @@ def run(ctx: StageContext) -> dict:
 
     solved = solve_scene(params, pieces.pieces, meshes, state, order,
                          seen_poses(paths, state, ctx.manifest.model), opt, log, ctx.progress)
+    mesh_files = {o.id: paths.stage_dir(src) / o.mesh for o in state.objects}
+    if opt.swap_to_completion and opt.only is None:
+        swapped = _solve_with_completions(ctx, src, state, meshes, order, parents, solved, log)
+        if swapped is not None:
+            state, pieces, solved, log, mesh_files = swapped
     params, final, flags = solved.params, solved.drift, solved.flags
-    _write(ctx, paths.stage_dir(src), state, params, final, log, flags)
+    _write(ctx, mesh_files, state, params, final, log, flags)
     for i, object_pieces in pieces.pieces.items():
         write_pieces(ctx.out_dir / PHYSOPT_COLLISION_DIR / f"{i}.npz", object_pieces,
                      convex.as_kwargs())
@@ -136,6 +144,59 @@ def run(ctx: StageContext) -> dict:
             "still_moving": len(opt.moving(final)), "rounds": len(log["rounds"]) - 1,
             "flagged_objects": len(flags),
             "warnings": [f"object {i}: {reason}" for i, reason in sorted(flags.items())]}
+
+
+def _new_log(src: str, order: list[int], parents: dict, pieces: "_Pieces") -> dict:
+    """physopt/log.json's record before the solve."""
+    return {"source": src, "order": order, "parents": parents,
+            "objects": {i: [] for i in order}, "rounds": [],
+            "collision_trim": _trim_log(pieces.reports),
+            "collision_shave": _shave_log(pieces.shaved)}
+
+
+def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, meshes: dict,
+                            order: list[int], parents: dict, solved: Solved, log: dict
+                            ) -> Optional[tuple]:
+    """Solve again with init's completion (``init/alternates/``) in place of every flagged
+    prior object; (state, pieces, solved, log, mesh files) of that solution when it leaves
+    fewer objects flagged and no more still moving, else None (``log`` then records the
+    attempt). A swapped object is seen where its completion was (its state carries
+    :data:`SEEN_POSE_KEY`, which export measures the displacement from)."""
+    paths, opt = ctx.paths, ctx.options
+    alt_dir = paths.stage_dir("init") / INIT_ALTERNATES_DIR
+    if not solved.flags or not (alt_dir / STATE_FILE).is_file():
+        return None
+    alternates = corrected_state(read_state(alt_dir), ctx.manifest.model)
+    swap = {o.id: o for o in alternates.objects
+            if o.id in solved.flags and o.id in meshes and state.object(o.id).source == "prior"}
+    if not swap:
+        return None
+    ctx.progress(f"objects {sorted(swap)}: solving again with their completions", 0.6)
+    objects = [swap[o.id].model_copy(update={"label": o.label,
+                                             SEEN_POSE_KEY: swap[o.id].world_from_object})
+               if o.id in swap else o for o in state.objects]
+    state2 = state.model_copy(update={"objects": objects})
+    meshes2 = {**meshes, **{i: welded(load_mesh(alt_dir / o.mesh)) for i, o in swap.items()}}
+    convex = ConvexParams(opt.convex_threshold, opt.max_convex_pieces, opt.convex_method)
+    pieces2 = _collision_pieces(ctx, state2, meshes2, convex, order)
+    params2 = initial_params(state2, meshes2, pieces2.pieces, opt.density_kg_m3,
+                             opt.mass_bounds, opt.friction_init, user_entries(paths.root))
+    seen2 = {**seen_poses(paths, state, ctx.manifest.model),
+             **{i: o.pose for i, o in swap.items()}}
+    log2 = _new_log(src, order, parents, pieces2)
+    solved2 = solve_scene(params2, pieces2.pieces, meshes2, state2, order, seen2, opt, log2,
+                          ctx.progress)
+    keep = (len(solved2.flags) < len(solved.flags)
+            and len(opt.moving(solved2.drift)) <= len(opt.moving(solved.drift)))
+    record = {"ids": sorted(swap), "flagged_before": sorted(solved.flags),
+              "flagged_after": sorted(solved2.flags), "kept": keep}
+    if not keep:
+        log["swap_to_completion"] = record
+        return None
+    log2["swap_to_completion"] = record
+    files = {o.id: (alt_dir / o.mesh if o.id in swap else paths.stage_dir(src) / o.mesh)
+             for o in state2.objects}
+    return state2, pieces2, solved2, log2, files
 
 
 @dataclass(frozen=True)
@@ -198,14 +259,15 @@ def _shave_log(shaved: dict[int, OverlapShave]) -> dict[str, dict]:
                      "cuts": r.cuts} for i, r in sorted(shaved.items())}
 
 
-def _write(ctx: StageContext, src_dir: Path, state: SceneState, params: dict, final: dict,
-           log: dict, flags: dict[int, str]) -> None:
-    """physopt/: the state with the tuned parameters, the meshes, log.json."""
+def _write(ctx: StageContext, mesh_files: dict[int, Path], state: SceneState, params: dict,
+           final: dict, log: dict, flags: dict[int, str]) -> None:
+    """physopt/: the state with the tuned parameters, the meshes (copied from
+    ``mesh_files``: id -> the mesh the solve used), log.json."""
     (ctx.out_dir / "meshes").mkdir()
     objects = []
     for o in state.objects:
         p = params[o.id]
-        shutil.copyfile(src_dir / o.mesh, ctx.out_dir / "meshes" / f"{o.id}.glb")
+        shutil.copyfile(mesh_files[o.id], ctx.out_dir / "meshes" / f"{o.id}.glb")
         data = o.model_dump()
         data.update(mesh=f"meshes/{o.id}.glb", world_from_object=p.world_from_object.tolist(),
                     mass_kg=p.mass_kg, com_in_object=[float(x) for x in p.com_in_object],

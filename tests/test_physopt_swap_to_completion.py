@@ -1,0 +1,96 @@
+"""physopt swaps init's completion in for a prior that can rest only far from where it was
+seen (r2s/stages/physopt.py ``swap_to_completion``): a ball prior registered 30 mm above the
+table (it must fall 30 mm, beyond the 20 mm observation tolerance) and, in init/alternates/,
+the completion of the same object, a 60 mm cube standing on the table where it was seen."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from r2s.io.manifest import StageRecord, load_manifest, save_manifest
+from r2s.io.mesh_io import load_mesh, save_mesh
+from r2s.io.paths import INIT_ALTERNATES_DIR
+from r2s.io.state import ObjectState, SceneState, SupportPlane, read_state, write_state
+from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, SEEN_POSE_KEY
+from r2s.runner.base import run_stage
+from r2s.stages.physopt import STAGE as PHYSOPT, Options as PhysOptions
+
+BALL_RADIUS_M = 0.04
+LIFT_M = 0.03
+CUBE_EDGE_M = 0.06
+
+
+def _pose(x: float, z: float) -> list:
+    p = np.eye(4)
+    p[0, 3], p[2, 3] = x, z
+    return p.tolist()
+
+
+def _scene(root: Path) -> Path:
+    """init/ with the floating ball prior (id 1) and a resting 80 mm box beside it (id 2,
+    completed); init/alternates/ with the cube completion of id 1; init marked done."""
+    d = root / "init"
+    (d / "meshes").mkdir(parents=True)
+    save_mesh(trimesh.creation.icosphere(subdivisions=3, radius=BALL_RADIUS_M),
+              d / "meshes" / "1.glb")
+    save_mesh(trimesh.creation.box([0.08] * 3), d / "meshes" / "2.glb")
+    support = SupportPlane(point=[0, 0, 0], normal=[0, 0, 1])
+    write_state(d, SceneState(stage="init", support=support, objects=[
+        ObjectState(id=1, label="ball", mesh="meshes/1.glb", source="prior",
+                    world_from_object=_pose(0.0, BALL_RADIUS_M + LIFT_M)),
+        ObjectState(id=2, label="box", mesh="meshes/2.glb", source="completed",
+                    world_from_object=_pose(0.2, 0.04))]))
+    alt = d / INIT_ALTERNATES_DIR
+    (alt / "meshes").mkdir(parents=True)
+    save_mesh(trimesh.creation.box([CUBE_EDGE_M] * 3), alt / "meshes" / "1.glb")
+    write_state(alt, SceneState(stage="init", support=support, objects=[
+        ObjectState(id=1, label="ball", mesh="meshes/1.glb", source="completed",
+                    world_from_object=_pose(0.0, CUBE_EDGE_M / 2))]))
+    m = load_manifest(root / "manifest.json")
+    m.stages["init"] = StageRecord(status="done")
+    save_manifest(root / "manifest.json", m)
+    return root
+
+
+def test_a_prior_that_rests_only_far_away_gives_way_to_its_completion(tmp_path: Path):
+    root = _scene(tmp_path / "scene")
+    result = run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False))
+    assert result.summary["flagged_objects"] == 0 and result.summary["still_moving"] == 0
+    state = read_state(root / "physopt")
+    obj = state.object(1)
+    assert obj.source == "completed"
+    assert np.allclose(getattr(obj, SEEN_POSE_KEY), _pose(0.0, CUBE_EDGE_M / 2))
+    assert np.linalg.norm(obj.pose[:3, 3] - [0.0, 0.0, CUBE_EDGE_M / 2]) < 0.002
+    assert abs(load_mesh(root / "physopt" / "meshes" / "1.glb").volume
+               - CUBE_EDGE_M ** 3) < 0.01 * CUBE_EDGE_M ** 3
+    assert state.object(2).source == "completed" and not getattr(state.object(2),
+                                                                 SEEN_POSE_KEY, None)
+    log = json.loads((root / "physopt" / "log.json").read_text())
+    assert log["swap_to_completion"] == {"ids": [1], "flagged_before": [1],
+                                         "flagged_after": [], "kept": True}
+
+
+def test_without_the_swap_the_prior_falls_and_is_flagged(tmp_path: Path):
+    root = _scene(tmp_path / "scene")
+    result = run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False, swap_to_completion=False))
+    assert result.summary["flagged_objects"] == 1
+    obj = read_state(root / "physopt").object(1)
+    assert obj.source == "prior" and "moved" in getattr(obj, OBSERVATION_FLAG_KEY)
+    assert abs(obj.pose[2, 3] - BALL_RADIUS_M) < 0.003  # fell the 30 mm onto the table
+
+
+def test_export_measures_a_swapped_object_from_where_its_completion_was_seen(tmp_path: Path):
+    """export takes the displacement of a swapped object from its completion's seen pose
+    (the state's SEEN_POSE_KEY), not from init's prior pose 30 mm higher."""
+    from r2s.io.paths import ScenePaths
+    from r2s.stages.export import _bodies_from_state
+
+    root = _scene(tmp_path / "scene")
+    run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False))
+    _, _, items = _bodies_from_state(ScenePaths(root), "physopt", {})
+    seen = {item.id: item.extra.get(SEEN_POSE_KEY) for item in items}
+    assert np.allclose(seen[1], _pose(0.0, CUBE_EDGE_M / 2)) and seen[2] is None
