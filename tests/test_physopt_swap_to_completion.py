@@ -94,3 +94,16 @@ def test_export_measures_a_swapped_object_from_where_its_completion_was_seen(tmp
     _, _, items = _bodies_from_state(ScenePaths(root), "physopt", {})
     seen = {item.id: item.extra.get(SEEN_POSE_KEY) for item in items}
     assert np.allclose(seen[1], _pose(0.0, CUBE_EDGE_M / 2)) and seen[2] is None
+
+
+def test_a_one_object_rerun_after_a_swap_is_refused_in_one_line(tmp_path: Path):
+    """``only=ID`` keeps the other objects' last poses, which belong to the swapped-in
+    completions, not to the priors it would load: refused with a StageError."""
+    import pytest
+
+    from r2s.errors import StageError
+
+    root = _scene(tmp_path / "scene")
+    run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False))
+    with pytest.raises(StageError, match="swapped for their completions"):
+        run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False, only=2))

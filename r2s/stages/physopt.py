@@ -124,7 +124,13 @@ def run(ctx: StageContext) -> dict:
             raise StageError(f"physopt only={opt.only}: no object {opt.only} "
                              f"(objects: {sorted(params)})")
         rerun = descendants(opt.only, parents or {})
-        params = keep_previous(params, read_state(paths.stage_dir("physopt")), rerun)
+        previous = read_state(paths.stage_dir("physopt"))
+        swapped = [o.id for o in previous.objects if getattr(o, SEEN_POSE_KEY, None)]
+        if swapped:
+            raise StageError(f"physopt only={opt.only}: objects {swapped} were swapped for "
+                             f"their completions in the last run; rerun physopt for the "
+                             f"whole scene")
+        params = keep_previous(params, previous, rerun)
         log["only"] = {"object": opt.only, "rerun": sorted(rerun)}
 
     solved = solve_scene(params, pieces.pieces, meshes, state, order,
