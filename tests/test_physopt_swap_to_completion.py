@@ -71,7 +71,8 @@ def test_a_prior_that_rests_only_far_away_gives_way_to_its_completion(tmp_path: 
                                                                  SEEN_POSE_KEY, None)
     log = json.loads((root / "physopt" / "log.json").read_text())
     assert log["swap_to_completion"] == {"ids": [1], "flagged_before": [1],
-                                         "flagged_after": [], "kept": True}
+                                         "flagged_after": [], "pooled_iou_before": None,
+                                         "pooled_iou_after": None, "kept": True}
 
 
 def test_without_the_swap_the_prior_falls_and_is_flagged(tmp_path: Path):
@@ -107,3 +108,17 @@ def test_a_one_object_rerun_after_a_swap_is_refused_in_one_line(tmp_path: Path):
     run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False))
     with pytest.raises(StageError, match="swapped for their completions"):
         run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False, only=2))
+
+
+def test_the_completions_are_kept_only_when_better_in_view_and_no_worse_at_rest():
+    """The decision table of r2s/physopt/swap_choice.py, with the seed demo's case: fewer
+    flags (3 -> 1) but a lower pooled IoU (0.784 -> 0.526) keeps the priors."""
+    from r2s.physopt.swap_choice import SolutionSummary as S, prefer_swapped
+
+    assert not prefer_swapped(S(3, 0, 0.784), S(1, 0, 0.526))
+    assert prefer_swapped(S(5, 0, 0.766), S(0, 0, 0.876))
+    assert not prefer_swapped(S(2, 0, 0.80), S(3, 0, 0.90))   # more flagged
+    assert not prefer_swapped(S(2, 0, 0.80), S(0, 1, 0.90))   # more still moving
+    assert not prefer_swapped(S(2, 0, 0.80), S(2, 0, 0.80))   # not better in view
+    assert prefer_swapped(S(1, 0, None), S(0, 0, None))       # no view: fewer flags decide
+    assert not prefer_swapped(S(1, 0, None), S(1, 0, None))

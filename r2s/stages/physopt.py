@@ -26,6 +26,7 @@ from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexMethod, ConvexParam
 from r2s.io.atomic import atomic_write_json
 from r2s.io.latest_state import latest_state_stage
 from r2s.io.manifest import Manifest
+from r2s.io.input_scene import load_input
 from r2s.io.mesh_io import load_mesh, welded
 from r2s.io.paths import (INIT_ALTERNATES_DIR, PHYSOPT_COLLISION_DIR, PHYSOPT_LOG_FILE,
                           STATE_FILE, ScenePaths)
@@ -37,10 +38,12 @@ from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, SEEN_POSE_KEY, s
 from r2s.physopt.params import initial_params, keep_previous
 from r2s.physopt.piece_overlap import OverlapShave, shave_overlaps
 from r2s.physopt.solve import Solved, physopt_provenance, solve_scene
+from r2s.physopt.swap_choice import SolutionSummary, prefer_swapped
+from r2s.metrics.observation import render_objects, silhouette_iou
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
 from r2s.physical.provenance import user_entries
 from r2s.runner.base import StageContext, StageOptions, StageSpec
-from r2s.scene_model import corrected_state
+from r2s.scene_model import corrected_input, corrected_state
 
 
 class Options(StageOptions, RepairSettings, DiffsimSettings):
@@ -192,10 +195,14 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
     log2 = _new_log(src, order, parents, pieces2)
     solved2 = solve_scene(params2, pieces2.pieces, meshes2, state2, order, seen2, opt, log2,
                           ctx.progress)
-    keep = (len(solved2.flags) < len(solved.flags)
-            and len(opt.moving(solved2.drift)) <= len(opt.moving(solved.drift)))
+    before = SolutionSummary(len(solved.flags), len(opt.moving(solved.drift)),
+                             _pooled_iou(ctx, meshes, solved.params))
+    after = SolutionSummary(len(solved2.flags), len(opt.moving(solved2.drift)),
+                            _pooled_iou(ctx, meshes2, solved2.params))
+    keep = prefer_swapped(before, after)
     record = {"ids": sorted(swap), "flagged_before": sorted(solved.flags),
-              "flagged_after": sorted(solved2.flags), "kept": keep}
+              "flagged_after": sorted(solved2.flags), "pooled_iou_before": before.pooled_iou,
+              "pooled_iou_after": after.pooled_iou, "kept": keep}
     if not keep:
         log["swap_to_completion"] = record
         return None
@@ -203,6 +210,20 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
     files = {o.id: (alt_dir / o.mesh if o.id in swap else paths.stage_dir(src) / o.mesh)
              for o in state2.objects}
     return state2, pieces2, solved2, log2, files
+
+
+def _pooled_iou(ctx: StageContext, meshes: dict, params: dict) -> Optional[float]:
+    """Pooled silhouette IoU of a solution (meshes at their solved poses) against input/'s
+    masks, rounded to 4 digits; None for a scene without input/."""
+    if not ctx.paths.input.is_dir():
+        return None
+    view = corrected_input(load_input(ctx.paths.root), ctx.manifest.model)
+    ids = sorted(params)
+    world = [meshes[i].copy().apply_transform(params[i].world_from_object) for i in ids]
+    cam = view.camera
+    rendered = render_objects(world, ids, cam.K, cam.world_from_camera, cam.width, cam.height)
+    pooled = silhouette_iou(rendered.ids, view.masks, ids)[1]
+    return None if pooled is None else round(float(pooled), 4)
 
 
 @dataclass(frozen=True)
