@@ -112,13 +112,15 @@ def test_a_one_object_rerun_after_a_swap_is_refused_in_one_line(tmp_path: Path):
 
 def test_the_completions_are_kept_only_when_better_in_view_and_no_worse_at_rest():
     """The decision table of r2s/physopt/swap_choice.py, with the seed demo's case: fewer
-    flags (3 -> 1) but a lower pooled IoU (0.784 -> 0.526) keeps the priors."""
+    flags (3 -> 1) but a lower pooled IoU (0.784 -> 0.526) keeps the priors; a gain under
+    MIN_IOU_GAIN (0.01) keeps them too."""
     from r2s.physopt.swap_choice import SolutionSummary as S, prefer_swapped
 
     assert not prefer_swapped(S(3, 0, 0.784), S(1, 0, 0.526))
     assert prefer_swapped(S(5, 0, 0.766), S(0, 0, 0.876))
     assert not prefer_swapped(S(2, 0, 0.80), S(3, 0, 0.90))   # more flagged
     assert not prefer_swapped(S(2, 0, 0.80), S(0, 1, 0.90))   # more still moving
-    assert not prefer_swapped(S(2, 0, 0.80), S(2, 0, 0.80))   # not better in view
+    assert not prefer_swapped(S(2, 0, 0.80), S(2, 0, 0.805))  # not clearly better in view
+    assert prefer_swapped(S(2, 0, 0.80), S(2, 0, 0.8101))
     assert prefer_swapped(S(1, 0, None), S(0, 0, None))       # no view: fewer flags decide
     assert not prefer_swapped(S(1, 0, None), S(1, 0, None))
