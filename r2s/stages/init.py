@@ -416,11 +416,13 @@ def _save_alternates(out: Path, alternates: dict[int, tuple], scene: InputScene,
                                    world_from_object=np.asarray(pose).tolist(),
                                    source="completed"))
     write_state(out / INIT_ALTERNATES_DIR, SceneState(
-        stage="init", gravity=list(DEFAULT_GRAVITY),
-        support=SupportPlane(point=[float(v) for v in plane.point],
-                             normal=[float(v) for v in plane.normal],
-                             friction=SUPPORT_FRICTION),
+        stage="init", gravity=list(DEFAULT_GRAVITY), support=_support_plane(plane),
         objects=objects))
+
+
+def _support_plane(plane: PlaneFit) -> SupportPlane:
+    return SupportPlane(point=[float(v) for v in plane.point],
+                        normal=[float(v) for v in plane.normal], friction=SUPPORT_FRICTION)
 
 
 def _rest_alone(mesh: trimesh.Trimesh, world_from_object: np.ndarray, plane: PlaneFit
@@ -612,13 +614,8 @@ def run(ctx: StageContext) -> dict:
                        _png_bytes(fit_overlay(scene.rgb, rendered, scene.masks, scene.ids,
                                               zoom_to_px=1000,
                                               labels={o.id: o.label for o in scene.objects})))
-    write_state(out, SceneState(
-        stage="init", gravity=list(DEFAULT_GRAVITY),
-        support=SupportPlane(point=[float(v) for v in plane.point],
-                             normal=[float(v) for v in plane.normal],
-                             friction=SUPPORT_FRICTION),
-        objects=objects,
-    ))
+    write_state(out, SceneState(stage="init", gravity=list(DEFAULT_GRAVITY),
+                                support=_support_plane(plane), objects=objects))
     ctx.progress("done", 1.0)
     finite = [r for r in rmses if np.isfinite(r)]
     fitnesses = [float(ob.icp_fitness) for ob in objects]
