@@ -100,11 +100,18 @@ def footprint_sdf(hull_equations: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return np.max(xy @ eq[:, :2].T + eq[:, 2], axis=-1)
 
 
+def _columns(pts: np.ndarray, x0: float, y0: float, nx: int, ny: int, cell_m: float
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """(ix, iy) the grid column (nearest node, clipped to the grid) of each (N, 3) point."""
+    ix = np.clip(np.floor((pts[:, 0] - x0) / cell_m + 0.5).astype(np.int64), 0, nx - 1)
+    iy = np.clip(np.floor((pts[:, 1] - y0) / cell_m + 0.5).astype(np.int64), 0, ny - 1)
+    return ix, iy
+
+
 def _top_height_map(pts: np.ndarray, x0: float, y0: float, nx: int, ny: int,
                     cell_m: float) -> np.ndarray:
     """(nx, ny) highest point per cell, NaN where no point falls."""
-    ix = np.clip(np.floor((pts[:, 0] - x0) / cell_m + 0.5).astype(np.int64), 0, nx - 1)
-    iy = np.clip(np.floor((pts[:, 1] - y0) / cell_m + 0.5).astype(np.int64), 0, ny - 1)
+    ix, iy = _columns(pts, x0, y0, nx, ny, cell_m)
     top = np.full((nx, ny), -np.inf)
     np.maximum.at(top, (ix, iy), pts[:, 2])
     top[~np.isfinite(top)] = np.nan
@@ -248,8 +255,7 @@ def _bridge(bottom: np.ndarray, carried: np.ndarray, top: np.ndarray, inside: np
         return bottom  # the carried columns are on a line: no area to stand on
     if np.max(hull.equations[:, :2] @ com + hull.equations[:, 2]) > 0.0:
         return bottom
-    ix = np.clip(np.rint((pts[:, 0] - gx[0, 0]) / cell).astype(np.int64), 0, gx.shape[0] - 1)
-    iy = np.clip(np.rint((pts[:, 1] - gy[0, 0]) / cell).astype(np.int64), 0, gx.shape[1] - 1)
+    ix, iy = _columns(pts, gx[0, 0], gy[0, 0], *gx.shape, cell)
     if np.mean(pts[:, 2] < bridged[ix, iy] - cell) > BRIDGE_MAX_POINTS_BELOW:
         return bottom
     return bridged

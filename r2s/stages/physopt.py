@@ -26,7 +26,7 @@ from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexMethod, ConvexParam
 from r2s.io.atomic import atomic_write_json
 from r2s.io.latest_state import latest_state_stage
 from r2s.io.manifest import Manifest
-from r2s.io.input_scene import load_input
+from r2s.io.input_scene import InputScene, load_input
 from r2s.io.mesh_io import load_mesh, welded
 from r2s.io.paths import (INIT_ALTERNATES_DIR, PHYSOPT_COLLISION_DIR, PHYSOPT_LOG_FILE,
                           STATE_FILE, ScenePaths)
@@ -91,7 +91,8 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
         True, description="Where a prior object can be made to rest only beyond the "
                           "observation tolerance, solve the scene again with init's completion "
                           "of it in its place (init/alternates/) and keep that solution if it "
-                          "leaves fewer objects flagged and no more still moving.")
+                          "leaves no more objects flagged or still moving and its silhouette "
+                          "IoU is higher by >= 0.01 (physopt/swap_choice.py).")
 
 
 def _source(paths: ScenePaths, options: Options, manifest: Manifest) -> str:
@@ -136,11 +137,13 @@ def run(ctx: StageContext) -> dict:
         params = keep_previous(params, previous, rerun)
         log["only"] = {"object": opt.only, "rerun": sorted(rerun)}
 
-    solved = solve_scene(params, pieces.pieces, meshes, state, order,
-                         seen_poses(paths, state, ctx.manifest.model), opt, log, ctx.progress)
+    seen = seen_poses(paths, state, ctx.manifest.model)
+    solved = solve_scene(params, pieces.pieces, meshes, state, order, seen, opt, log,
+                         ctx.progress)
     mesh_files = {o.id: paths.stage_dir(src) / o.mesh for o in state.objects}
     if opt.swap_to_completion and opt.only is None:
-        swapped = _solve_with_completions(ctx, src, state, meshes, order, parents, solved, log)
+        swapped = _solve_with_completions(ctx, src, state, meshes, order, parents, seen,
+                                          convex, solved, log)
         if swapped is not None:
             state, pieces, solved, log, mesh_files = swapped
     params, final, flags = solved.params, solved.drift, solved.flags
@@ -164,13 +167,15 @@ def _new_log(src: str, order: list[int], parents: dict, pieces: "_Pieces") -> di
 
 
 def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, meshes: dict,
-                            order: list[int], parents: dict, solved: Solved, log: dict
+                            order: list[int], parents: dict, seen: dict[int, np.ndarray],
+                            convex: ConvexParams, solved: Solved, log: dict
                             ) -> Optional[tuple]:
     """Solve again with init's completion (``init/alternates/``) in place of every flagged
-    prior object; (state, pieces, solved, log, mesh files) of that solution when it leaves
-    fewer objects flagged and no more still moving, else None (``log`` then records the
-    attempt). A swapped object is seen where its completion was (its state carries
-    :data:`SEEN_POSE_KEY`, which export measures the displacement from)."""
+    prior object (``seen``: id -> where each object was seen, for the first solve);
+    (state, pieces, solved, log, mesh files) of that solution when
+    :func:`r2s.physopt.swap_choice.prefer_swapped` prefers it, else None (``log`` then
+    records the attempt). A swapped object is seen where its completion was (its state
+    carries :data:`SEEN_POSE_KEY`, which export measures the displacement from)."""
     paths, opt = ctx.paths, ctx.options
     alt_dir = paths.stage_dir("init") / INIT_ALTERNATES_DIR
     if not solved.flags or not (alt_dir / STATE_FILE).is_file():
@@ -186,19 +191,19 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
                if o.id in swap else o for o in state.objects]
     state2 = state.model_copy(update={"objects": objects})
     meshes2 = {**meshes, **{i: welded(load_mesh(alt_dir / o.mesh)) for i, o in swap.items()}}
-    convex = ConvexParams(opt.convex_threshold, opt.max_convex_pieces, opt.convex_method)
     pieces2 = _collision_pieces(ctx, state2, meshes2, convex, order)
     params2 = initial_params(state2, meshes2, pieces2.pieces, opt.density_kg_m3,
                              opt.mass_bounds, opt.friction_init, user_entries(paths.root))
-    seen2 = {**seen_poses(paths, state, ctx.manifest.model),
-             **{i: o.pose for i, o in swap.items()}}
+    seen2 = {**seen, **{i: o.pose for i, o in swap.items()}}
     log2 = _new_log(src, order, parents, pieces2)
     solved2 = solve_scene(params2, pieces2.pieces, meshes2, state2, order, seen2, opt, log2,
                           ctx.progress)
+    view = (corrected_input(load_input(paths.root), ctx.manifest.model)
+            if paths.input.is_dir() else None)
     before = SolutionSummary(len(solved.flags), len(opt.moving(solved.drift)),
-                             _pooled_iou(ctx, meshes, solved.params))
+                             _pooled_iou(view, meshes, solved.params))
     after = SolutionSummary(len(solved2.flags), len(opt.moving(solved2.drift)),
-                            _pooled_iou(ctx, meshes2, solved2.params))
+                            _pooled_iou(view, meshes2, solved2.params))
     keep = prefer_swapped(before, after)
     record = {"ids": sorted(swap), "flagged_before": sorted(solved.flags),
               "flagged_after": sorted(solved2.flags), "pooled_iou_before": before.pooled_iou,
@@ -212,12 +217,11 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
     return state2, pieces2, solved2, log2, files
 
 
-def _pooled_iou(ctx: StageContext, meshes: dict, params: dict) -> Optional[float]:
-    """Pooled silhouette IoU of a solution (meshes at their solved poses) against input/'s
-    masks, rounded to 4 digits; None for a scene without input/."""
-    if not ctx.paths.input.is_dir():
+def _pooled_iou(view: Optional[InputScene], meshes: dict, params: dict) -> Optional[float]:
+    """Pooled silhouette IoU of a solution (meshes at their solved poses) against the
+    view's masks, rounded to 4 digits; None without a view (a scene without input/)."""
+    if view is None:
         return None
-    view = corrected_input(load_input(ctx.paths.root), ctx.manifest.model)
     ids = sorted(params)
     world = [meshes[i].copy().apply_transform(params[i].world_from_object) for i in ids]
     cam = view.camera
