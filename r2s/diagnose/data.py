@@ -103,6 +103,39 @@ class SupportData:
     """(N, 3) a subsample of the plane's inlier points, camera frame (a depth correction
     refits the plane on them)."""
     world_from_camera: Optional[np.ndarray] = None
+    anchor_world: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """(3,) a point the model puts on the table, world frame: the declared world's origin
+    (the table is ``z = 0`` there), moved with the world by a camera correction."""
+    height_used: bool = False
+    """Whether the declared world puts the table through its origin, so that the table's
+    height is evidence (decided once per measurement:
+    :func:`r2s.diagnose.stats.table_height.declares_table`)."""
+    height_sigma_m: float = 0.002
+    """Noise level of the table's height at ``anchor_world`` (m): the plane fit (a tenth of
+    a millimetre on the benchmark) plus how well a real world frame sits on the table."""
+
+    @property
+    def height_m(self) -> float:
+        """How much farther (m) the fitted table lies from the camera than the model puts
+        it: the camera's distance to the fitted plane minus its distance to the model's
+        table, the plane through ``anchor_world`` normal to ``model_normal`` (or ``up``).
+        A camera rotation about its centre keeps both; a depth scale ``s`` makes it
+        ``(s - 1)`` times the distance; a tilted table pivoting about the origin changes
+        the first and, once the model holds the tilt, the second alike."""
+        m = np.asarray(self.up if self.model_normal is None else self.model_normal,
+                       dtype=np.float64)
+        m = m / np.linalg.norm(m)
+        model = float(m @ (np.asarray(self.camera_center, dtype=np.float64)
+                           - np.asarray(self.anchor_world, dtype=np.float64)))
+        return self.camera_distance_m - model
+
+    @property
+    def camera_distance_m(self) -> float:
+        """Distance (m) of the camera centre from the fitted plane."""
+        n = np.asarray(self.normal, dtype=np.float64)
+        n = n / np.linalg.norm(n)
+        return float(abs(n @ (np.asarray(self.camera_center, dtype=np.float64)
+                              - np.asarray(self.point, dtype=np.float64))))
 
 
 # ---- physical residual: motion of the reconstruction in a PyBullet rollout --------------

@@ -88,6 +88,12 @@ class Options(StageOptions):
                                                            "prior spread counts for.")
     support_sigma_deg: float = Field(0.3, gt=0, description="Noise of each table tilt component, "
                                                             "degrees.")
+    table_height: Literal["auto", "on", "off"] = Field(
+        "auto", description="Use the table's height at the declared world's origin as "
+                            "evidence (auto: when the fitted table passes within 15 % of "
+                            "the camera distance of it; docs/diagnose.md section 2).")
+    table_height_sigma_m: float = Field(0.002, gt=0, description="Noise of the table's height "
+                                                                 "at the world origin, m.")
     min_fitness: float = Field(0.6, ge=0, le=1, description="An object's shape fits the data when "
                                                             "this share of its points lies on it.")
     max_rmse_m: float = Field(0.004, gt=0, description="... and their RMS distance is below this.")
@@ -148,6 +154,7 @@ def settings_of(options: Options) -> MeasureSettings:
         scale_sigma=options.scale_sigma, support_sigma_deg=options.support_sigma_deg,
         prior_scale_sigma=options.prior_scale_sigma, prior_scale_dof=options.prior_scale_dof,
         table_shape_sigma_m=options.table_shape_sigma_m,
+        table_height=options.table_height, table_height_sigma_m=options.table_height_sigma_m,
         min_fitness=options.min_fitness, max_rmse_m=options.max_rmse_m,
         min_prior_points=options.min_prior_points,
         physics_source=options.physics_source, physics=options.physics,

@@ -14,6 +14,7 @@ from r2s.diagnose.effects._depth_model import (corrected_registration, corrected
                                                offset_information_from_priors,
                                                offset_sigma_from_priors)
 from r2s.diagnose.stats.noise import mixed_sampling_bar, null_registrations, sampling_bar
+from r2s.diagnose.stats.table_height import height_evidence, with_height
 from r2s.diagnose.stats.table_offset import (MAX_TABLE_OFFSET_M, TableOffsetEvidence,
                                              corrected_table, with_measured_noise)
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
@@ -107,13 +108,20 @@ class DepthBiasEffect(Effect):
         """The fit with ``table`` as the table's evidence (None: the priors alone)."""
         reg = residuals.registration
         n_reg = len(reg.used()) if reg is not None else 0
-        # the table tells the offset, never the scale: an offset alone needs no prior
-        need = self.n_params + 1 if table is None else (2 if self.fit_scale else 0)
+        height = height_evidence(residuals.support)
+        # the table's shape tells the offset, never the scale; its height (where the
+        # declared world gives it) tells either one: one of them alone needs no prior
+        if self.n_params == 1 and (height is not None or (table is not None
+                                                          and self.fit_offset)):
+            need = 0
+        else:
+            need = self.n_params + 1 if table is None and height is None else 2
         if n_reg < need:
             return not_identifiable(self.name, residuals,
                                     f"needs at least {need} objects with a metric "
                                     "prior registered to the observation")
-        scale, offset = fit_bias(reg if n_reg else None, self.fit_scale, self.fit_offset, table)
+        scale, offset = fit_bias(reg if n_reg else None, self.fit_scale, self.fit_offset, table,
+                                 height)
         after = residuals
         if n_reg:
             after = replace(after, registration=corrected_registration(reg, scale, offset))
@@ -128,35 +136,56 @@ class DepthBiasEffect(Effect):
         if table is not None:
             note += (f" (the table's shape alone: {table.offset_m * 1000:+.1f} +- "
                      f"{table.sigma_m * 1000:.1f} mm)")
+        if height is not None:
+            note += (f" (the table lies {height.distance_m * 1000:.1f} mm from the camera, "
+                     f"the declared world puts it at {height.model_distance_m * 1000:.1f} mm)")
         return make_fit(self.name, residuals, after, params, self.n_params, size, unit,
                         note=note)
 
     def noise_bar(self, residuals: Residuals, n_params: int, draws: int, quantile: float,
                   seed: int) -> Optional[float]:
         """What noise alone explains: the prior scales bootstrapped over objects (centred),
-        the table's offset drawn from its own noise (N(0, sigma_T)); at least the sampling
-        quantile of the combined estimate (:func:`mixed_sampling_bar`)."""
+        the table's offset drawn from its own noise (N(0, sigma_T)), the table's height
+        from its own (N(0, sigma_h)); at least the sampling quantile of the combined
+        estimate (:func:`mixed_sampling_bar`)."""
         table, _ = self.table_evidence(residuals)
-        if table is None:
+        height = height_evidence(residuals.support)
+        if table is None and height is None:
             return super().noise_bar(residuals, n_params, draws, quantile, seed)
         reg = residuals.registration
         enough = reg is not None and len(reg.used()) >= 3
         nulls = (list(null_registrations(reg, draws, seed)) if enough else [None] * draws)
         rng = np.random.default_rng(seed + 1)
-        no_table = replace(residuals, table_shape=None)
+        base = replace(residuals, table_shape=None) if table is not None else residuals
         values = []
         for null in nulls:
-            drawn = TableOffsetEvidence(float(rng.normal(0.0, table.sigma_m)), table.sigma_m,
-                                        0.0)
-            fit = self.fit_with(replace(no_table, registration=null), drawn)
+            drawn = None
+            if table is not None:
+                drawn = TableOffsetEvidence(float(rng.normal(0.0, table.sigma_m)),
+                                            table.sigma_m, 0.0)
+            trial = replace(base, registration=null)
+            if height is not None:
+                trial = replace(trial, support=with_height(
+                    residuals.support, float(rng.normal(0.0, height.sigma_m))))
+            fit = self.fit_with(trial, drawn)
             if fit.identifiable:
-                values.append(fit.explained_sse + drawn.explained(fit.params["offset_m"]))
+                values.append(fit.explained_sse
+                              + (drawn.explained(fit.params["offset_m"]) if drawn else 0.0))
         boot = float(np.quantile(values, quantile)) if values else 0.0
         if n_params == 1:
-            # the priors' share of the information, with their noise level's dof, even
-            # where too few to bootstrap
-            info_t = 1.0 / table.sigma_m ** 2
-            share = info_t / (info_t + offset_information_from_priors(reg))
+            # the share of the information with a known noise level (the table's), against
+            # the priors' with their noise level's dof, even where too few to bootstrap
+            known = 0.0
+            if table is not None:
+                known += 1.0 / table.sigma_m ** 2
+            if height is not None:
+                known += height.information(self.fit_scale)
+            if self.fit_scale:
+                n_used = len(reg.used()) if reg is not None else 0
+                priors = n_used / reg.scale_sigma ** 2 if n_used else 0.0
+            else:
+                priors = offset_information_from_priors(reg)
+            share = known / (known + priors)
             bar = mixed_sampling_bar(reg.noise_dof if reg is not None else None, share,
                                      quantile, seed=seed)
         else:

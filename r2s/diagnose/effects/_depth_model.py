@@ -21,6 +21,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from r2s.diagnose.data import RegistrationData, ScaleObs, SupportData
+from r2s.diagnose.stats.table_height import TableHeightEvidence
 from r2s.diagnose.stats.table_offset import TableOffsetEvidence
 
 
@@ -36,9 +37,12 @@ def correct_depth(depth_m: np.ndarray, scale: float, offset_m: float) -> np.ndar
 
 
 def fit_bias(data: Optional[RegistrationData], fit_scale: bool, fit_offset: bool,
-             table: Optional[TableOffsetEvidence] = None) -> tuple[float, float]:
-    """Robust (Huber) least-squares (s, o) from per-object prior scales (log residuals)
-    and, for ``o``, the table's shape (``table``: one more residual, ``(o - o_T) / sigma_T``).
+             table: Optional[TableOffsetEvidence] = None,
+             height: Optional[TableHeightEvidence] = None) -> tuple[float, float]:
+    """Robust (Huber) least-squares (s, o) from per-object prior scales (log residuals),
+    for ``o`` the table's shape (``table``: one more residual, ``(o - o_T) / sigma_T``) and
+    the table's height where the declared world gives it (``height``: one more residual,
+    the height left after the correction over its noise level).
 
     With only one of the two free, the other is held at its neutral value (1 or 0).
     """
@@ -64,16 +68,25 @@ def fit_bias(data: Optional[RegistrationData], fit_scale: bool, fit_offset: bool
         r = (log_s - np.log(apparent_scale(z, s, o))) / sigma
         if use_table:
             r = np.append(r, (o - table.offset_m) / table.sigma_m)
+        if height is not None:
+            r = np.append(r, height.residual_m(s, o) / height.sigma_m)
         return r
 
     x0 = []
     if fit_scale:
-        x0.append(float(np.mean(log_s)) if len(log_s) else 0.0)
+        if height is not None and not fit_offset:
+            x0.append(float(np.log(height.distance_m / height.model_distance_m)))
+        else:
+            x0.append(float(np.mean(log_s)) if len(log_s) else 0.0)
     if fit_offset:
         if use_table:
             x0.append(float(table.offset_m))
+        elif height is not None and not fit_scale:
+            x0.append(float((1.0 - height.model_distance_m / height.distance_m)
+                            / height.mean_inverse_depth))
         else:
-            x0.append(0.0 if fit_scale else float(np.mean((np.exp(log_s) - 1.0) * z)))
+            x0.append(0.0 if fit_scale or not len(log_s)
+                      else float(np.mean((np.exp(log_s) - 1.0) * z)))
     # Huber: one prior that is far off in size (a bad prior, a bad fit) must not drag s
     sol = least_squares(fun, np.array(x0), loss="huber", f_scale=1.5)
     return unpack(sol.x)

@@ -85,8 +85,11 @@ def level_world(residuals: Residuals, corr: np.ndarray) -> Residuals:
     rot = corr[:3, :3]
     out = residuals
     if sup is not None:
+        # the true table passes through the true origin, which the declared world holds at
+        # corr^-1 (0): a rotation about the camera keeps the table's distance from it
+        anchor = np.linalg.inv(corr) @ np.append(np.asarray(sup.anchor_world, dtype=float), 1.0)
         out = replace(out, support=replace(sup, up=rot.T @ np.asarray(sup.up, dtype=float),
-                                           model_normal=None))
+                                           model_normal=None, anchor_world=anchor[:3]))
     phys = residuals.physics
     if phys is not None:
         model = phys.base.with_changes(gravity=rot.T @ phys.base.gravity)

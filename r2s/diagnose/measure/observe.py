@@ -8,7 +8,7 @@ outputs are the :mod:`r2s.diagnose.data` containers.
 from __future__ import annotations
 
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Optional
 
@@ -24,6 +24,7 @@ from r2s.diagnose.measure.interaction import Push, simulate_push, simulate_push_
 from r2s.diagnose.measure.physics import (BodySpec, WorldSpec, rollout_motion, support_contacts,
                                           write_pieces)
 from r2s.diagnose.stats.noise import scale_noise_level
+from r2s.diagnose.stats.table_height import declares_table
 from r2s.diagnose.measure.scale_fit import SurfaceModel, fit_prior_scale, free_space
 from r2s.geometry.camera import backproject, camera_center
 from r2s.geometry.convex_cache import cached_convex_decomposition
@@ -110,8 +111,13 @@ def registration_residual(qualities: dict[int, FitQuality], scale_sigma: float,
 
 
 def support_residual(inp: InputScene, gravity: np.ndarray, sigma_rad: float,
-                     max_points: int = 60000, seed: int = 0) -> Optional[SupportData]:
-    """RANSAC plane of the table pixels (mask 0) against the model's gravity."""
+                     max_points: int = 60000, seed: int = 0, height_sigma_m: float = 0.002,
+                     table_height: str = "auto") -> Optional[SupportData]:
+    """RANSAC plane of the table pixels (mask 0) against the model's gravity.
+
+    ``table_height``: whether the table's height at the declared world's origin is evidence
+    ("auto": when the declared world evidently puts the table there,
+    :func:`r2s.diagnose.stats.table_height.declares_table`; "on"; "off")."""
     pts = backproject(inp.depth_m, inp.camera.K, inp.camera.world_from_camera,
                       mask=inp.masks == 0)
     if len(pts) < 100:
@@ -130,10 +136,13 @@ def support_residual(inp: InputScene, gravity: np.ndarray, sigma_rad: float,
     if len(inl) > 5000:
         inl = inl[np.random.default_rng(seed).choice(len(inl), 5000, replace=False)]
     camera_from_world = np.linalg.inv(inp.camera.world_from_camera)
-    return SupportData(normal=plane.normal, point=plane.point, up=up, sigma_rad=sigma_rad,
+    data = SupportData(normal=plane.normal, point=plane.point, up=up, sigma_rad=sigma_rad,
                        camera_center=centre, n_points=int(plane.inliers.sum()),
                        points_camera=inl @ camera_from_world[:3, :3].T + camera_from_world[:3, 3],
-                       world_from_camera=np.asarray(inp.camera.world_from_camera))
+                       world_from_camera=np.asarray(inp.camera.world_from_camera),
+                       height_sigma_m=float(height_sigma_m))
+    used = table_height == "on" or (table_height == "auto" and declares_table(data))
+    return replace(data, height_used=bool(used))
 
 
 def table_shape_residual(inp: InputScene, sigma_m: float, max_points: int = 20000,

@@ -56,6 +56,8 @@ class MeasureSettings:
     prior_scale_dof: float = 20.0
     support_sigma_deg: float = 0.3
     table_shape_sigma_m: float = 0.001
+    table_height: str = "auto"
+    table_height_sigma_m: float = 0.002
     min_fitness: float = 0.6
     min_prior_points: int = 150
     max_rmse_m: float = 0.004
@@ -177,7 +179,9 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
                                          settings.prior_scale_sigma, settings.prior_scale_dof,
                                          settings.min_prior_points)
     gravity = np.asarray(init_state.gravity, dtype=np.float64)
-    support = support_residual(inp, gravity, float(np.radians(settings.support_sigma_deg)))
+    support = support_residual(inp, gravity, float(np.radians(settings.support_sigma_deg)),
+                               height_sigma_m=settings.table_height_sigma_m,
+                               table_height=settings.table_height)
     progress("depth residual", 0.42)
     depth_map = depth_residual_map(inp, init_objects, support)
 

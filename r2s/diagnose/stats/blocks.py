@@ -15,6 +15,9 @@ Blocks:
   magnitudes over the rollout.
 - ``interaction``: per observed object, the 3 components of predicted minus observed
   displacement of a push.
+- ``table_height``: the fitted table's distance from the camera minus the model's, m,
+  where the declared world puts the table through its origin
+  (:mod:`r2s.diagnose.stats.table_height`).
 - ``table_shape``: per image tile, the mean distance of the table points to one plane
   fitted to all of them (:mod:`r2s.diagnose.stats.table_shape`).
 """
@@ -97,6 +100,12 @@ def support_block(data: SupportData) -> Block:
                  unit="rad")
 
 
+def table_height_block(data: SupportData) -> Block:
+    """The fitted table's distance from the camera minus the model's (m), one entry."""
+    return Block("table_height", np.array([data.height_m]), np.array([data.height_sigma_m]),
+                 ("table farther than the model puts it",), unit="m", cap=6.0)
+
+
 def physics_block(data: PhysicsData) -> Block:
     vals, sig, labels = [], [], []
     for obj_id in sorted(data.motion):
@@ -137,6 +146,8 @@ def blocks_of(res: Residuals) -> dict[str, Block]:
         out["registration"] = registration_block(res.registration)
     if res.support is not None:
         out["support"] = support_block(res.support)
+        if res.support.height_used:
+            out["table_height"] = table_height_block(res.support)
     if res.physics is not None and res.physics.motion:
         out["physics"] = physics_block(res.physics)
     if res.interaction is not None and res.interaction.observed_m:
