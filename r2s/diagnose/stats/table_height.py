@@ -28,7 +28,7 @@ camera height once levelled (:func:`declares_table`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -54,45 +54,59 @@ def declares_table(support: SupportData) -> bool:
     return bool(dist > 0 and closest <= DECLARED_SHARE * dist)
 
 
+EVIDENCE_POINTS = 1500
+"""Table inliers the depth fits refit the plane on (a seeded subsample)."""
+
+
 @dataclass(frozen=True)
 class TableHeightEvidence:
     """The table's height as one observation of a depth bias (s, o).
 
+    points_camera : (N, 3) table inliers, camera frame, m.
     distance_m : camera centre to the fitted plane, m.
     model_distance_m : camera centre to the model's table, m.
-    mean_inverse_depth : mean of ``1 / z`` over the table's inliers (camera z), 1/m.
+    mean_inverse_depth : mean of ``1 / z`` over the inliers (camera z), 1/m.
     sigma_m : noise level of the height, m.
     """
 
+    points_camera: np.ndarray = field(repr=False)
     distance_m: float
     model_distance_m: float
     mean_inverse_depth: float
     sigma_m: float
 
     def residual_m(self, scale: float, offset_m: float) -> float:
-        """The height left after correcting the depth by ``(z - o) / s``: every point moves
-        along its ray to ``(1 - o / z) / s`` of its depth, so the plane's distance becomes
-        ``d (1 - o <1/z>) / s`` (its normal kept: the offset's turn is second order)."""
-        moved = self.distance_m * (1.0 - offset_m * self.mean_inverse_depth) / scale
-        return float(moved - self.model_distance_m)
+        """The height left after correcting the depth by ``(z - o) / s``: the inliers
+        moved along their rays to ``(z - o) / s`` and the plane refitted on them (an
+        offset turns it as well as moving it)."""
+        p = self.points_camera
+        z = p[:, 2:3]
+        q = p * ((z - offset_m) / scale) / z
+        centre = q.mean(axis=0)
+        normal = np.linalg.svd(q - centre, full_matrices=False)[2][2]
+        return float(abs(normal @ centre) - self.model_distance_m)
 
     def information(self, fit_scale: bool) -> float:
-        """Fisher information of the height about ``log s`` (``fit_scale``) or about ``o``."""
+        """Fisher information of the height about ``log s`` (``fit_scale``) or about ``o``
+        (a plane at distance d moves by about ``d <1/z>`` per metre of offset)."""
         slope = self.distance_m if fit_scale else self.distance_m * self.mean_inverse_depth
         return float((slope / self.sigma_m) ** 2)
 
 
-def height_evidence(support: SupportData | None) -> TableHeightEvidence | None:
+def height_evidence(support: SupportData | None, seed: int = 0) -> TableHeightEvidence | None:
     """The evidence of ``support`` when its height is used, else None."""
     if support is None or not support.height_used or support.points_camera is None:
         return None
-    z = np.asarray(support.points_camera, dtype=np.float64)[:, 2]
-    z = z[z > 0]
-    if len(z) == 0:
+    p = np.asarray(support.points_camera, dtype=np.float64)
+    p = p[p[:, 2] > 0]
+    if len(p) < 3:
         return None
+    if len(p) > EVIDENCE_POINTS:
+        p = p[np.random.default_rng(seed).choice(len(p), EVIDENCE_POINTS, replace=False)]
     dist = support.camera_distance_m
-    return TableHeightEvidence(distance_m=dist, model_distance_m=dist - support.height_m,
-                               mean_inverse_depth=float(np.mean(1.0 / z)),
+    return TableHeightEvidence(points_camera=p, distance_m=dist,
+                               model_distance_m=dist - support.height_m,
+                               mean_inverse_depth=float(np.mean(1.0 / p[:, 2])),
                                sigma_m=float(support.height_sigma_m))
 
 
