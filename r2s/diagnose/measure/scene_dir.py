@@ -29,7 +29,7 @@ from r2s.diagnose.measure.observe import (ObjectModel, depth_residual_map,
                                           interaction_residual, measure_fit_qualities,
                                           physics_residual, registration_residual,
                                           support_residual, table_shape_residual, world_spec)
-from r2s.scene_model import corrected_input, corrected_state
+from r2s.scene_model import corrected_input, corrected_state, model_effects
 from r2s.errors import StageError
 from r2s.interaction.track import track_objects
 from r2s.io.input_scene import InputScene, load_input, read_json_file
@@ -182,6 +182,10 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
     support = support_residual(inp, gravity, float(np.radians(settings.support_sigma_deg)),
                                height_sigma_m=settings.table_height_sigma_m,
                                table_height=settings.table_height)
+    tilt = model_effects(model).get("table_tilt")
+    if support is not None and tilt is not None and "normal_world" in tilt:
+        # the model holds the table's tilt: the fitted normal is compared with it
+        support = replace(support, model_normal=np.asarray(tilt["normal_world"], dtype=float))
     progress("depth residual", 0.42)
     depth_map = depth_residual_map(inp, init_objects, support)
 
