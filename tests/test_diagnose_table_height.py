@@ -176,3 +176,29 @@ def test_height_noise_alone_names_nothing():
     d = diagnose(Residuals(registration=reg, support=sup), all_effects(), max_effects=2,
                  noise=NOISE)
     assert d.chosen == ()
+
+
+@pytest.mark.parametrize("angle_deg", [3.0, -3.0])
+def test_lookahead_prefers_camera_and_scale_to_a_table_tilt_that_takes_the_height(angle_deg):
+    """A 4 % scale with the camera pitched 3 deg. Pitched one way, a table tilted through
+    the origin lies 18 mm farther, about what the scale did (20 mm), so one effect at a
+    time takes the table tilt (it explains the tilt and the distance; the camera only the
+    tilt) and stops there. The priors still say 1.04: the camera then the scale explain
+    everything, and the two-step lookahead takes the camera."""
+    pose = _true_world_from_camera()
+    sup = _support(1.04 * _table_points_camera(pose), _turned(pose, angle_deg, [0.0, 1.0, 0.0]))
+    rng = np.random.default_rng(7)
+    reg = RegistrationData(tuple(ScaleObs(id=i, scale=float(1.04 * np.exp(rng.normal(0, 0.01))),
+                                          depth_m=0.55, fitness=0.9, n_points=500)
+                                 for i in range(1, 6)), scale_sigma=0.025)
+    res = Residuals(registration=reg, support=sup)
+    greedy = diagnose(res, all_effects(), max_effects=3, noise=NOISE, lookahead=False)
+    ahead = diagnose(res, all_effects(), max_effects=3, noise=NOISE)
+    found = {c.effect: c for c in ahead.chosen}
+    assert set(found) == {"depth_scale", "camera_rotation"}
+    assert found["depth_scale"].size == pytest.approx(1.04, abs=0.004)
+    assert found["camera_rotation"].size == pytest.approx(3.0, abs=0.05)
+    # pitched one way the table through the origin takes the distance and one effect at a
+    # time stops at it; the other way the greedy order was right already
+    expected_greedy = ["table_tilt"] if angle_deg < 0 else ["camera_rotation", "depth_scale"]
+    assert [c.effect for c in greedy.chosen] == expected_greedy

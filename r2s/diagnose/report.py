@@ -65,6 +65,7 @@ def build_report(r: ReportInput) -> dict[str, Any]:
         "steps": list(r.steps),
         "ranking": [[f.summary() for f in rnd.fits] for rnd in r.rounds],
         "ties": [list(rnd.ties) for rnd in r.rounds],
+        "paths": [list(rnd.paths) for rnd in r.rounds],
         "not_identifiable": not_ident,
         "n_obs": total_n(blocks_of(r.before)),
         "physics_stage": r.physics_stage,

@@ -53,6 +53,7 @@ class LoopConfig:
     rerun_stages: Optional[list] = None
     structure_alpha: float = 1e-3
     joint_refit: bool = True
+    lookahead: bool = True
 
 
 @dataclass
@@ -227,7 +228,7 @@ def run_loop(root: Path, settings: MeasureSettings, cfg: LoopConfig,
             names = {f.effect for f in kept} | excluded
             rnd = rank(current.residuals, {n: e for n, e in effects.items() if n not in names},
                        cfg.tie_tolerance, cfg.penalties, cfg.noise,
-                       min_evidence=cfg.min_evidence)
+                       min_evidence=cfg.min_evidence, lookahead=cfg.lookahead)
             rounds.append(rnd)
             fit, skipped = _choose(rnd, current.residuals, cfg)
             if fit is None:

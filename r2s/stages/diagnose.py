@@ -49,6 +49,9 @@ class Options(StageOptions):
                                                      "reverted) at most.")
     budget_s: float = Field(3600.0, gt=0, description="Start no new loop step after this "
                                                       "many seconds.")
+    lookahead: bool = Field(True, description="Rank the leading effects by the best two-step "
+                                               "path (the effect, then the best second on "
+                                               "what it leaves) instead of one at a time.")
     joint_refit: bool = Field(True, description="Refit interacting kept effects together at "
                                                 "the end (one more rerun).")
     camera_prior_odds: float = Field(
@@ -183,7 +186,8 @@ def loop_config(options: Options) -> LoopConfig:
         noise=(NoiseBar(options.noise_draws, options.noise_quantile)
                if options.noise_draws > 0 else None),
         rerun=options.rerun, rerun_stages=options.rerun_stages or None,
-        structure_alpha=options.structure_alpha, joint_refit=options.joint_refit)
+        structure_alpha=options.structure_alpha, joint_refit=options.joint_refit,
+        lookahead=options.lookahead)
 
 
 def run(ctx: StageContext) -> dict:

@@ -91,7 +91,10 @@ def level_world(residuals: Residuals, corr: np.ndarray) -> Residuals:
         out = replace(out, support=replace(sup, up=rot.T @ np.asarray(sup.up, dtype=float),
                                            model_normal=None, anchor_world=anchor[:3]))
     phys = residuals.physics
-    if phys is not None:
+    if phys is not None and phys.stage != "init":
+        # init's state is each object's raw registration: one that moves under one gravity
+        # and rests under the other says its pose is a little off, not where down is (as
+        # for com_offset); the geometric evidence (the table) decides there
         model = phys.base.with_changes(gravity=rot.T @ phys.base.gravity)
         motion = phys.simulate(model) if phys.simulate is not None else phys.motion
         motion = slope_explained(phys, motion)

@@ -37,6 +37,10 @@ class Round:
 
     fits: tuple[EffectFit, ...]
     ties: tuple[str, ...] = ()
+    paths: tuple[dict, ...] = ()
+    """The two-step paths the lookahead compared (:func:`look_ahead`): the first effect,
+    the best supported second one fitted to what the first is predicted to leave (None:
+    none), and the path's summed score."""
 
     @property
     def best(self) -> EffectFit | None:
@@ -108,23 +112,66 @@ def supported(fit: EffectFit | None, min_evidence: float) -> bool:
             and fit.score < -min_evidence)
 
 
+LOOKAHEAD_CANDIDATES = 3
+"""How many of a round's leading supported effects the lookahead follows one step on."""
+
+
 def rank(residuals: Residuals, effects: dict[str, Effect], tie_tolerance: float = 2.0,
          penalties: dict[str, float] | None = None, noise: NoiseBar | None = None,
-         progress: ProgressFn = silent_progress, min_evidence: float = 2.0) -> Round:
-    """Fit every effect of ``effects`` to ``residuals`` and order them (one round)."""
+         progress: ProgressFn = silent_progress, min_evidence: float = 2.0,
+         lookahead: bool = False) -> Round:
+    """Fit every effect of ``effects`` to ``residuals`` and order them (one round); with
+    ``lookahead``, by the best two-step path (:func:`look_ahead`)."""
     fits = []
     for k, (name, effect) in enumerate(effects.items()):
         progress(f"fitting {name}", k / max(len(effects), 1))
         fits.append(fit_effect(effect, residuals, (penalties or {}).get(name, effect.penalty),
                                noise, min_evidence))
-    return order_fits(fits, effects, tie_tolerance)
+    rnd = order_fits(fits, effects, tie_tolerance)
+    if lookahead:
+        rnd = look_ahead(rnd, effects, tie_tolerance, penalties, noise, min_evidence)
+    return rnd
+
+
+def look_ahead(rnd: Round, effects: dict[str, Effect], tie_tolerance: float,
+               penalties: dict[str, float] | None, noise: NoiseBar | None,
+               min_evidence: float) -> Round:
+    """The round reordered by two-step paths.
+
+    One effect at a time is greedy: a tilted table fitted through the world's origin can
+    take up the table's distance that a depth scale made, and win the first step over the
+    camera rotation that, with the scale after it, explains the table and the priors
+    together. So each of the first :data:`LOOKAHEAD_CANDIDATES` supported effects is put
+    into the model (its predicted residuals), the others are ranked on what it leaves, and
+    the path's score is its score plus the best supported second's. The leader gives way
+    only to a path better by more than ``tie_tolerance``, and then to the first one (in the
+    round's order) within ``tie_tolerance`` of the best path."""
+    lead = [f for f in rnd.fits[:LOOKAHEAD_CANDIDATES]
+            if supported(f, min_evidence) and f.residuals_after is not None]
+    if len(lead) < 2:
+        return rnd
+    paths = []
+    for f in lead:
+        rest = {n: e for n, e in effects.items() if n != f.effect}
+        second = rank(f.residuals_after, rest, tie_tolerance, penalties, noise,
+                      min_evidence=min_evidence).best
+        nxt = second if supported(second, min_evidence) else None
+        paths.append({"first": f.effect, "second": None if nxt is None else nxt.effect,
+                      "score": f.score + (nxt.score if nxt is not None else 0.0)})
+    top = min(p["score"] for p in paths)
+    fits = list(rnd.fits)
+    if paths[0]["score"] > top + tie_tolerance:
+        # the first (in the round's order) of the paths the data cannot tell from the best
+        best = next(i for i, p in enumerate(paths) if p["score"] <= top + tie_tolerance)
+        fits.insert(0, fits.pop(fits.index(lead[best])))
+    return replace(rnd, fits=tuple(fits), paths=tuple(paths))
 
 
 def diagnose(residuals: Residuals, effects: dict[str, Effect], max_effects: int = 1,
              min_evidence: float = 2.0, tie_tolerance: float = 2.0,
              progress: ProgressFn = silent_progress,
              penalties: dict[str, float] | None = None,
-             noise: NoiseBar | None = None) -> Diagnosis:
+             noise: NoiseBar | None = None, lookahead: bool = True) -> Diagnosis:
     """Fit every effect, rank them, and keep up to ``max_effects`` supported ones, each
     fitted to the residuals the previous ones are predicted to leave (no rerun: the
     stage's loop reruns the stages and measures instead, when it can).
@@ -137,7 +184,8 @@ def diagnose(residuals: Residuals, effects: dict[str, Effect], max_effects: int 
     for r in range(max_effects):
         names = {n: e for n, e in effects.items() if n not in {c.effect for c in chosen}}
         rnd = rank(current, names, tie_tolerance, penalties, noise,
-                   lambda m, f, r=r: progress(m, (r + f) / max_effects), min_evidence)
+                   lambda m, f, r=r: progress(m, (r + f) / max_effects), min_evidence,
+                   lookahead=lookahead)
         rounds.append(rnd)
         best = rnd.best
         if not supported(best, min_evidence):
