@@ -89,3 +89,22 @@ def test_isotropic_fit_is_the_one_scale_of_the_per_axis_model(scene):
     held = fit_prior_scale(SurfaceModel(mesh), pts, iso.object_from_camera, fit_scale=False,
                            fit_rotation=False, schedule_m=(0.003,))
     assert held.scale == pytest.approx(iso.scale, rel=1e-9)
+
+
+@pytest.mark.parametrize("focal_error", [0.0, FOCAL_ERROR, -0.03])
+def test_focal_length_is_fitted_from_the_tables_turn_and_distance(scene, focal_error):
+    """camera.json's fx, fy (1 + e) times the true ones: the table turns and moves as one
+    factor says, and ``focal_length`` fits the true focal length's factor 1 / (1 + e) to
+    within 0.3 % from the table alone; it is named over a camera rotation and a depth
+    effect; without the error nothing is named."""
+    from r2s.diagnose.effects import all_effects, get_effect
+    from r2s.diagnose.stats.ranking import NoiseBar, diagnose
+
+    inp = _declared(scene, focal_error)
+    support = support_residual(inp, np.array([0.0, 0.0, -9.81]), float(np.radians(0.3)))
+    assert support.height_used
+    res = Residuals(support=support, table_shape=table_shape_residual(inp, 0.0004))
+    fit = get_effect("focal_length").fit(res)
+    assert fit.size == pytest.approx(1.0 / (1.0 + focal_error), abs=0.003)
+    d = diagnose(res, all_effects(), max_effects=2, noise=NoiseBar(draws=50))
+    assert [c.effect for c in d.chosen] == ([] if focal_error == 0.0 else ["focal_length"])
