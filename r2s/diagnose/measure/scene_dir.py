@@ -159,6 +159,19 @@ def load_objects(paths: ScenePaths, stage: str, state: SceneState, inp: InputSce
     return out
 
 
+def model_support(inp, gravity: np.ndarray, settings: MeasureSettings,
+                  model: Optional[Mapping[str, Any]]):
+    """The support residual against the model's table: level under ``gravity``, or the
+    normal of a kept ``table_tilt``."""
+    support = support_residual(inp, gravity, float(np.radians(settings.support_sigma_deg)),
+                               height_sigma_m=settings.table_height_sigma_m,
+                               table_height=settings.table_height)
+    tilt = model_effects(model).get("table_tilt")
+    if support is not None and tilt is not None and "normal_world" in tilt:
+        support = replace(support, model_normal=np.asarray(tilt["normal_world"], dtype=float))
+    return support
+
+
 def measure_scene(scene_dir: Path, settings: MeasureSettings,
                   model: Optional[Mapping[str, Any]] = None,
                   progress: ProgressFn = silent_progress) -> Measured:
@@ -179,13 +192,7 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
                                          settings.prior_scale_sigma, settings.prior_scale_dof,
                                          settings.min_prior_points)
     gravity = np.asarray(init_state.gravity, dtype=np.float64)
-    support = support_residual(inp, gravity, float(np.radians(settings.support_sigma_deg)),
-                               height_sigma_m=settings.table_height_sigma_m,
-                               table_height=settings.table_height)
-    tilt = model_effects(model).get("table_tilt")
-    if support is not None and tilt is not None and "normal_world" in tilt:
-        # the model holds the table's tilt: the fitted normal is compared with it
-        support = replace(support, model_normal=np.asarray(tilt["normal_world"], dtype=float))
+    support = model_support(inp, gravity, settings, model)
     progress("depth residual", 0.42)
     depth_map = depth_residual_map(inp, init_objects, support)
 
