@@ -3,7 +3,7 @@
 ``manifest.model`` holds ``{"effects": {name: params}}``. Stages call:
 
 - :func:`corrected_input` on the loaded ``input/`` (init; texture and evaluate for the
-  camera): depth bias and camera rotation corrected;
+  camera): depth bias, lens distortion, focal length and camera rotation corrected;
 - :func:`corrected_state` on a state before they use it (physopt, export): COM shifts,
   friction, a tilted table (and, for a state made before a camera correction was kept,
   the world rotation).
