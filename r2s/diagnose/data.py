@@ -18,6 +18,8 @@ from typing import Callable, Optional
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from r2s.geometry.plane import signed_distance
+
 
 # ---- registration residual: does the observation agree with metric priors? -------------
 
@@ -129,13 +131,16 @@ class SupportData:
                            - np.asarray(self.anchor_world, dtype=np.float64)))
         return self.camera_distance_m - model
 
+    def plane_distance_m(self, point_world: np.ndarray) -> float:
+        """Signed distance (m) of a world point from the fitted plane (positive on the
+        normal's side)."""
+        return float(signed_distance(np.asarray(point_world, dtype=np.float64)[None],
+                                     self.point, self.normal)[0])
+
     @property
     def camera_distance_m(self) -> float:
         """Distance (m) of the camera centre from the fitted plane."""
-        n = np.asarray(self.normal, dtype=np.float64)
-        n = n / np.linalg.norm(n)
-        return float(abs(n @ (np.asarray(self.camera_center, dtype=np.float64)
-                              - np.asarray(self.point, dtype=np.float64))))
+        return abs(self.plane_distance_m(self.camera_center))
 
 
 # ---- physical residual: motion of the reconstruction in a PyBullet rollout --------------

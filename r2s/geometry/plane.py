@@ -40,7 +40,10 @@ def signed_distance(points: np.ndarray, point: np.ndarray, normal: np.ndarray) -
     return (np.asarray(points, dtype=np.float64) - np.asarray(point, dtype=np.float64)) @ n
 
 
-def _least_squares_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def least_squares_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(centroid, unit normal)`` of the least-squares plane of (N, 3) points (the normal's
+    sign is the SVD's: orient it where it matters)."""
+    points = np.asarray(points, dtype=np.float64)
     centroid = points.mean(axis=0)
     _, _, vt = np.linalg.svd(points - centroid, full_matrices=False)
     return centroid, vt[2]
@@ -113,7 +116,7 @@ def fit_plane_ransac(points: np.ndarray, threshold_m: float = 0.005, iterations:
         inl = np.abs((p - point) @ normal) < threshold_m
         if inl.sum() < 3:
             break
-        point, normal = _least_squares_plane(p[inl])
+        point, normal = least_squares_plane(p[inl])
     normal = _orient(normal / np.linalg.norm(normal), point, hint, viewpoint)
     inliers = np.zeros(len(pts), dtype=bool)
     inliers[idx_finite] = np.abs((p - point) @ normal) < threshold_m

@@ -23,6 +23,7 @@ from scipy.optimize import least_squares
 from r2s.diagnose.data import RegistrationData, ScaleObs, SupportData
 from r2s.diagnose.stats.table_height import TableHeightEvidence
 from r2s.diagnose.stats.table_offset import TableOffsetEvidence
+from r2s.geometry.plane import least_squares_plane
 
 
 def apparent_scale(depth_obs_m: np.ndarray, scale: float, offset_m: float) -> np.ndarray:
@@ -151,8 +152,7 @@ def support_refitted(support: SupportData, points_camera: np.ndarray) -> Support
     q = np.asarray(points_camera, dtype=np.float64)
     t = np.asarray(support.world_from_camera, dtype=np.float64)
     w = q @ t[:3, :3].T + t[:3, 3]
-    centre = w.mean(axis=0)
-    normal = np.linalg.svd(w - centre, full_matrices=False)[2][2]
+    centre, normal = least_squares_plane(w)
     if normal @ (np.asarray(support.camera_center) - centre) < 0:
         normal = -normal
     return replace(support, normal=normal, point=centre, points_camera=q)

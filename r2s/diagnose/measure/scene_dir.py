@@ -22,7 +22,7 @@ from typing import Any, Mapping, Optional
 import numpy as np
 
 from r2s.console import ProgressFn, silent_progress
-from r2s.diagnose.data import Residuals
+from r2s.diagnose.data import Residuals, SupportData
 from r2s.diagnose.measure.gt_errors import export_gt_errors, metrics_subset, state_gt_errors
 from r2s.diagnose.measure.interaction import read_push
 from r2s.diagnose.measure.observe import (ObjectModel, depth_residual_map,
@@ -159,8 +159,8 @@ def load_objects(paths: ScenePaths, stage: str, state: SceneState, inp: InputSce
     return out
 
 
-def model_support(inp, gravity: np.ndarray, settings: MeasureSettings,
-                  model: Optional[Mapping[str, Any]]):
+def model_support(inp: InputScene, gravity: np.ndarray, settings: MeasureSettings,
+                  model: Optional[Mapping[str, Any]]) -> Optional[SupportData]:
     """The support residual against the model's table: level under ``gravity``, or the
     normal of a kept ``table_tilt``."""
     support = support_residual(inp, gravity, float(np.radians(settings.support_sigma_deg)),

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from r2s.diagnose.data import SupportData
+from r2s.geometry.plane import least_squares_plane
 
 DECLARED_SHARE = 0.15
 """The table counts as declared when its height at the origin, or its camera distance
@@ -45,11 +46,8 @@ def declares_table(support: SupportData) -> bool:
     """Whether the declared world evidently puts the table through its origin: the fitted
     plane's distance from the camera is near the declared one, or the plane passes near the
     origin (a tilted table)."""
-    n = np.asarray(support.normal, dtype=np.float64)
-    n = n / np.linalg.norm(n)
     dist = support.camera_distance_m
-    through_origin = abs(float(n @ (np.asarray(support.anchor_world, dtype=np.float64)
-                                    - np.asarray(support.point, dtype=np.float64))))
+    through_origin = abs(support.plane_distance_m(support.anchor_world))
     closest = min(abs(support.height_m), through_origin)
     return bool(dist > 0 and closest <= DECLARED_SHARE * dist)
 
@@ -82,8 +80,7 @@ class TableHeightEvidence:
         p = self.points_camera
         z = p[:, 2:3]
         q = p * ((z - offset_m) / scale) / z
-        centre = q.mean(axis=0)
-        normal = np.linalg.svd(q - centre, full_matrices=False)[2][2]
+        centre, normal = least_squares_plane(q)
         return float(abs(normal @ centre) - self.model_distance_m)
 
     def information(self, fit_scale: bool) -> float:

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from r2s.geometry.plane import least_squares_plane
+
 GRID = (8, 6)
 """Tiles across and down the image."""
 MIN_TILE_POINTS = 30
@@ -48,8 +50,7 @@ def fit_plane(points: np.ndarray, iterations: int = 3) -> tuple[np.ndarray, floa
     keep = np.ones(len(p), dtype=bool)
     n, d = np.array([0.0, 0.0, -1.0]), 0.0
     for _ in range(iterations):
-        c = p[keep].mean(axis=0)
-        n = np.linalg.svd(p[keep] - c, full_matrices=False)[2][2]
+        c, n = least_squares_plane(p[keep])
         if n @ c > 0:
             n = -n
         d = float(n @ c)
