@@ -66,6 +66,16 @@ def test_unknown_option_in_set_names_the_options(tiny_scene, capsys):
     assert_usage_error(code, out, err, "graph has no option 'sead'", "seed")
 
 
+
+def test_bad_option_value_in_set_is_a_usage_error(tiny_scene, capsys):
+    """A value the option's type refuses is a usage mistake too: exit 2, one line."""
+    code, out, err = run_main(["run", str(tiny_scene), "--set", "graph.seed=maybe"], capsys)
+    assert_usage_error(code, out, err, "graph option seed")
+    assert not (tiny_scene / "manifest.json").exists()
+    code, out, err = run_main(["diagnose", str(tiny_scene), "--set", "table_height=maybe"],
+                              capsys)
+    assert_usage_error(code, out, err, "diagnose option table_height", "'auto', 'on' or 'off'")
+
 def test_version(capsys):
     code, out, err = run_main(["--version"], capsys)
     assert code == 0 and out.strip() == f"r2s {__version__}" and err == ""

@@ -199,8 +199,8 @@ def run_batch(root: Path, config: BatchConfig, out_dir: Optional[Path] = None,
     """Run every scene under ``root`` with ``config``; write ``report.md``/``report.csv``
     into ``out_dir`` (default ``root``)."""
     from r2s.batch import write_batch_report
-    from r2s.runner.pipeline import check_option_names, split_overrides
-    from r2s.runner.registry import PIPELINE, get_stage
+    from r2s.runner.pipeline import check_overrides, split_overrides
+    from r2s.runner.registry import PIPELINE
 
     if config.executor not in EXECUTORS:
         raise UsageError(f"unknown executor '{config.executor}'; executors are "
@@ -210,8 +210,7 @@ def run_batch(root: Path, config: BatchConfig, out_dir: Optional[Path] = None,
     for name in config.skip:
         if name not in PIPELINE:
             raise UsageError(f"unknown stage '{name}'; stages are {', '.join(PIPELINE)}")
-    for name, values in split_overrides(config.overrides).items():  # fail before any run
-        check_option_names(get_stage(name), values)
+    check_overrides(split_overrides(config.overrides))  # fail before any run
     scenes = find_scenes(Path(root))
     if not scenes:
         raise UsageError(f"{root}: no scene (a folder holding input/) at any depth")

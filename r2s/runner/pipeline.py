@@ -57,7 +57,7 @@ def _option_error(spec: StageSpec, exc: ValidationError) -> R2SError:
     if err.get("type") == "extra_forbidden":
         valid = ", ".join(spec.options_type.model_fields)
         return UsageError(f"{spec.name} has no option '{loc}'; its options are {valid}")
-    return R2SError(f"{spec.name} option {loc}: {err.get('msg')}")
+    return UsageError(f"{spec.name} option {loc}: {err.get('msg')}")
 
 
 def check_option_names(spec: StageSpec, values: dict) -> None:
@@ -66,6 +66,15 @@ def check_option_names(spec: StageSpec, values: dict) -> None:
     if unknown:
         raise UsageError(f"{spec.name} has no option '{unknown[0]}'; its options are "
                          f"{', '.join(spec.options_type.model_fields)}")
+
+
+def check_overrides(per_stage: dict[str, dict]) -> None:
+    """A :class:`UsageError` for the first override whose stage has no such option or whose
+    value the option's type refuses (``per_stage`` as from :func:`split_overrides`)."""
+    for name, values in per_stage.items():
+        spec = get_stage(name)
+        check_option_names(spec, values)
+        build_options(spec, None, values)
 
 
 def build_options(spec: StageSpec, base: Optional[dict], overrides: dict) -> StageOptions:
@@ -166,8 +175,7 @@ def _run_pipeline_locked(scene_dir: Path, force: bool, until: Optional[str], ski
         if name not in PIPELINE:
             raise UsageError(f"unknown stage '{name}'; stages are {', '.join(PIPELINE)}")
     per_stage = split_overrides(overrides)
-    for name, values in per_stage.items():  # a misspelt option fails before anything runs
-        check_option_names(get_stage(name), values)
+    check_overrides(per_stage)  # a misspelt option or a bad value fails before anything runs
     noop.forget(scene_dir)
     warnings: list[str] = []
     paths = _check_scene(scene_dir, lambda w: (warnings.append(w), on_warning(w)))
