@@ -90,6 +90,8 @@ COM_TRIES = 24
 """A COM offset shows only when the rest pose needs it: synth seeds tried per COM scene
 (few draws qualify: one in 5 and none in 8 in the last table; a scene kept after the last try
 without qualifying is marked "not observable in gt" in the table)."""
+PUSH_TRIES = 4
+"""Synth seeds drawn for a friction scene until one has an object on the table to strike."""
 
 
 def add_row_depth_error(scene: Path, error_m: float = ROW_DEPTH_ERROR_M) -> None:
@@ -157,11 +159,16 @@ def make_scene(root: Path, case: str, seed: int, count: int, size: tuple[int, in
 
     from r2s.synth.generate import SynthOptions, synthesize
 
+    from r2s.errors import R2SError
+
     scene = root / f"{case}_s{seed}"
-    tries = COM_TRIES if case == "com_offset" else 1
+    pushed = "friction" in CASES[case][0]
+    tries = COM_TRIES if case == "com_offset" else PUSH_TRIES if pushed else 1
     for k in range(tries):
-        if (scene / "gt" / "scene.json").is_file():
+        if (scene / "gt" / "scene.json").is_file() and (not pushed or has_observed_push(scene)):
             break
+        if scene.exists():
+            shutil.rmtree(scene)
         t0 = time.perf_counter()
         n = count if count > 0 else SCENE_COUNTS[seed % len(SCENE_COUNTS)]
         synthesize(scene, SynthOptions(objects="ycb", count=n, seed=1000 * (k + 1) + seed,
@@ -175,8 +182,14 @@ def make_scene(root: Path, case: str, seed: int, count: int, size: tuple[int, in
                   flush=True)
             if k + 1 < tries:
                 shutil.rmtree(scene)
-    if "friction" in CASES[case][0] and not has_observed_push(scene):
-        write_observed_push(scene)
+            continue
+        if pushed:
+            try:
+                write_observed_push(scene)
+            except R2SError as exc:  # nothing to strike in this clutter: draw another
+                print(f"  {scene.name}: {exc}; next seed", flush=True)
+                if k + 1 == tries:
+                    raise
     return scene
 
 
