@@ -23,6 +23,7 @@ from r2s.diagnose.measure.interaction import Push, simulate_push
 from r2s.diagnose.measure.observe import (ObjectModel, fit_quality, interaction_residual,
                                           physics_residual, support_residual, world_spec)
 from r2s.diagnose.measure.physics import support_contacts
+from r2s.diagnose.measure.scene_dir import struck_objects_rest
 from r2s.scene_model import corrected_input, corrected_state, with_effect
 from r2s.diagnose.stats.ranking import diagnose
 from r2s.diagnose.effects import all_effects
@@ -178,6 +179,12 @@ def test_friction_is_fitted_on_a_resting_twin_when_the_geometric_state_moves():
     assert on_twin.resting_ids == frozenset({1, 2})
     fit = get_effect("friction").fit(Residuals(physics=phys, interaction=on_twin))
     assert fit.params["objects"]["1"]["friction"] == pytest.approx(0.3, rel=0.1)
+    # what interaction_source=auto reads: the struck box moves in the geometric state's
+    # rollout, so the push goes to the resting twin; in the twin's own rollout it rests
+    assert not struck_objects_rest(observed, phys, 0.005)
+    twin_rest = physics_residual(twin, G, {1: True, 2: True}, 1.0, 0.01, np.radians(3.0), 4.0)
+    assert struck_objects_rest(observed, twin_rest, 0.005)
+    assert struck_objects_rest({1: np.zeros(3)}, phys, 0.005)  # nothing was struck
 
 
 # ---- hooks --------------------------------------------------------------------------------

@@ -115,8 +115,9 @@ class Options(StageOptions):
     interaction_sigma_m: float = Field(0.005, gt=0, description="Noise of an observed push "
                                                                 "displacement component, metres.")
     interaction_source: Literal["auto", "init", "geomopt", "physopt"] = Field(
-        "auto", description="State the observed push is simulated on (auto: physopt, at rest, "
-                            "when it ran; else the rollout's).")
+        "auto", description="State the observed push is simulated on (auto: the rollout's "
+                            "when the struck objects rest in it; else physopt's, at rest, "
+                            "when it ran).")
     keep_copy: bool = Field(False, description="Keep the rerun copy (its path is in the report).")
     plots: bool = Field(True, description="Write residuals.png.")
 

@@ -69,8 +69,10 @@ class MeasureSettings:
     cap: float = 4.0
     interaction_sigma_m: float = 0.005
     interaction_source: str = "auto"
-    """State the observed push is simulated on: auto = physopt's when it ran (the twin a
-    user would predict with, at rest), else the physical residual's."""
+    """State the observed push is simulated on: auto = the physical residual's (the observed
+    geometry, with the default frictions) when the objects the push moved rest in its
+    rollout; else physopt's when it ran (solved to rest, with the frictions physopt raised
+    or lowered to hold it there), else the physical residual's anyway."""
     density_kg_m3: Optional[float] = None
     default_friction: Optional[float] = None
     """None: the export stage's (recorded, else default) options, so that diagnose rolls
@@ -127,12 +129,24 @@ def tracked_motion(paths: ScenePaths, model: Optional[Mapping[str, Any]],
     return {i: t.displacement_m for i, t in tracked.items()}, turned
 
 
-def interaction_stage(paths: ScenePaths, source: str, physics_stage_name: str) -> str:
-    """The state the observed push is simulated on (see ``MeasureSettings``)."""
+def interaction_stage(paths: ScenePaths, source: str, physics_stage_name: str,
+                      struck_at_rest: bool = True) -> str:
+    """The state the observed push is simulated on (see ``MeasureSettings``);
+    ``struck_at_rest``: the objects the push moved rest in the physical residual's
+    rollout."""
     manifest = load_manifest(paths.manifest)
     if source == "auto":
-        return "physopt" if finished(paths, manifest, "physopt") else physics_stage_name
+        if struck_at_rest or not finished(paths, manifest, "physopt"):
+            return physics_stage_name
+        return "physopt"
     return latest_state_stage(paths, manifest, source)
+
+
+def struck_objects_rest(observed_m: dict, physics, sigma_m: float) -> bool:
+    """Do the objects an observed push moved (by more than two noise levels; ``observed_m``:
+    id -> (3,) displacement, m) rest in the rollout of ``physics`` (a PhysicsData)?"""
+    moved = {i for i, d in observed_m.items() if np.linalg.norm(d) > 2.0 * sigma_m}
+    return not (moved & set(physics.moving(physics.motion)))
 
 
 def export_options(paths: ScenePaths) -> BodyParams:
@@ -232,7 +246,9 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
                 if not observed:
                     notes.append(f"{paths.interaction}: no observed.json displacements and "
                                  "no object could be tracked in depth_after/masks_after")
-            push_stage = interaction_stage(paths, settings.interaction_source, stage)
+            push_stage = interaction_stage(
+                paths, settings.interaction_source, stage,
+                struck_objects_rest(observed, physics, settings.interaction_sigma_m))
             push_spec = spec
             if push_stage != stage:
                 push_state = corrected_state(read_state(paths.stage_dir(push_stage)), model)
