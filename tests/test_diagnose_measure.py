@@ -187,6 +187,31 @@ def test_friction_is_fitted_on_a_resting_twin_when_the_geometric_state_moves():
     assert struck_objects_rest({1: np.zeros(3)}, phys, 0.005)  # nothing was struck
 
 
+def test_a_friction_too_low_to_hold_a_box_on_a_slope_shows_in_the_static_rollout():
+    """A box on a 20 deg slope (support friction 1, so the contact's is the box's) holds
+    with friction 0.8 > tan 20 deg = 0.36 and slides with 0.3: the friction effect's
+    prediction moves it in the static rollout too, not only in the push."""
+    from r2s.diagnose.data import InteractionData
+    from r2s.diagnose.effects.friction import with_friction
+
+    tilt = Rotation.from_euler("y", 20, degrees=True).as_matrix()
+    normal = tilt @ np.array([0.0, 0.0, 1.0])
+    box = trimesh.creation.box((0.06, 0.06, 0.06))
+    pose = np.eye(4)
+    pose[:3, :3] = tilt
+    pose[:3, 3] = 0.03 * normal + 1e-4 * normal
+    spec = world_spec([ObjectModel(1, "a", box, pose, 1.0, friction=0.8)], [0, 0, 0], normal,
+                      1.0, None)
+    phys = physics_residual(spec, G, {1: True}, 1.0, 0.01, np.radians(3.0), 4.0)
+    assert 1 not in phys.moving(phys.motion)
+    inter = InteractionData(observed_m={1: np.zeros(3)}, predicted_m={1: np.zeros(3)},
+                            simulate=lambda model: {1: np.zeros(3)})
+    res = Residuals(physics=phys, interaction=inter)
+    assert 1 not in with_friction(res, {1: 0.8}).physics.moving(phys.motion)
+    slid = with_friction(res, {1: 0.3}).physics
+    assert 1 in slid.moving(slid.motion)
+
+
 # ---- hooks --------------------------------------------------------------------------------
 
 def _state() -> SceneState:

@@ -129,11 +129,17 @@ def moved_objects(inter: InteractionData, sigmas: float = 2.0) -> list[int]:
 
 
 def with_friction(residuals: Residuals, friction: dict) -> Residuals:
+    """The residuals predicted with the frictions ``friction`` (id -> coefficient): the
+    push, and the static rollout too (a lower friction can set a leaning object sliding at
+    rest, which then counts against the fit instead of surfacing in the next round as a
+    COM offset)."""
     phys = residuals.physics
     model = phys.base.with_changes(friction=friction)
     inter = residuals.interaction
+    physics = (phys.with_motion(model, phys.simulate(model)) if phys.simulate is not None
+               else replace(phys, base=model))
     return replace(residuals, interaction=inter.with_prediction(inter.simulate(model)),
-                   physics=replace(phys, base=model))
+                   physics=physics)
 
 
 def fit_one(residuals: Residuals, obj_id: int) -> float:
