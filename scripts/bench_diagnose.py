@@ -59,17 +59,22 @@ CASES: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
     "offset+friction": ({"depth_offset_m": "0.01", "friction": "0.3"},
                         ("depth_offset", "friction")),
     "row_depth": ({}, ()),
+    "disparity_bias": ({}, ()),
     "focal_error": ({}, ("focal_length",)),
     "principal_point_error": ({}, ()),
 }
-"""case -> (synth effects, the effects diagnose should name). ``row_depth`` and
-``principal_point_error`` are outside the catalogue (:func:`add_row_depth_error`,
-:func:`add_principal_point_error`, injected by this script only): diagnose should report
-them as unexplained structure and name nothing. ``focal_error`` (:func:`add_focal_error`,
+"""case -> (synth effects, the effects diagnose should name). ``row_depth``,
+``principal_point_error`` and ``disparity_bias`` are outside the catalogue
+(:func:`add_row_depth_error`, :func:`add_principal_point_error`,
+:func:`add_disparity_bias`, injected by this script only): diagnose should report them as
+unexplained structure and name nothing. ``focal_error`` (:func:`add_focal_error`,
 injected by this script too) is in the catalogue as ``focal_length``."""
 
-UNCATALOGUED = {"row_depth", "principal_point_error"}
+UNCATALOGUED = {"row_depth", "principal_point_error", "disparity_bias"}
 ROW_DEPTH_ERROR_M = 0.006
+DISPARITY_ERROR_AT_1M = 0.01
+"""The disparity bias of ``disparity_bias``: 1 m reads 1.01 m (0.6 m reads about 3.6 mm
+too far)."""
 """The uncatalogued effect: depth reads long by 6 mm x (row offset from the centre,
 -1..1)^2, a gutter along the image rows."""
 FOCAL_ERROR = 0.04
@@ -115,6 +120,29 @@ def add_row_depth_error(scene: Path, error_m: float = ROW_DEPTH_ERROR_M) -> None
     gt_path.write_text(json.dumps(gt, indent=1))
 
 
+def add_disparity_bias(scene: Path, error_at_1m: float = DISPARITY_ERROR_AT_1M) -> None:
+    """Inject a stereo sensor's disparity bias into input/depth.png (recorded in gt/ only):
+    a constant error in disparity, so depth reads z / (1 - c z), too far by about c z^2
+    (``error_at_1m`` at 1 m), a depth error no catalogued effect is (a scale and an offset
+    are linear in z)."""
+    from PIL import Image
+
+    from r2s.synth.files import depth_png, write_png
+
+    paths = ScenePaths(scene)
+    cam = json.loads((paths.input / "camera.json").read_text())
+    unit = float(cam.get("depth_unit_m", 0.001))
+    raw = np.asarray(Image.open(paths.depth_png), dtype=np.float64)
+    depth = np.where(raw > 0, raw * unit, np.nan)
+    c = error_at_1m / (1.0 + error_at_1m)  # 1 m reads 1 + error_at_1m
+    write_png(paths.depth_png, depth_png(depth / (1.0 - c * depth), unit))
+    gt_path = paths.gt / "scene.json"
+    gt = json.loads(gt_path.read_text())
+    gt.setdefault("injected_effects", {})["disparity_bias"] = {
+        "error_at_1m_m": error_at_1m, "inverse_depth_offset_per_m": c}
+    gt_path.write_text(json.dumps(gt, indent=1))
+
+
 def add_focal_error(scene: Path, error: float = FOCAL_ERROR) -> None:
     """Inject the mis-declared focal length: input/camera.json's fx, fy become (1 + error)
     times the true ones (recorded in gt/ only; gt/scene.json's camera keeps the true K)."""
@@ -150,7 +178,8 @@ def add_principal_point_error(scene: Path, error: float = PRINCIPAL_POINT_ERROR)
 
 
 SCRIPT_INJECT = {"row_depth": add_row_depth_error, "focal_error": add_focal_error,
-                       "principal_point_error": add_principal_point_error}
+                       "principal_point_error": add_principal_point_error,
+                       "disparity_bias": add_disparity_bias}
 """case -> the function that injects it into a synthesised scene."""
 
 
