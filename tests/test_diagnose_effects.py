@@ -214,6 +214,23 @@ def test_com_offset_fit_on_a_toppling_object():
     assert fit.residuals_after.physics.motion[7].angle_rad == 0.0
 
 
+def test_com_offset_prior_odds_count_once_per_shifted_object():
+    """100:1 against per object: one shifted object costs 2 ln 100, two cost twice that,
+    and the ranking scores a fit with it (the toppling object above, one shift)."""
+    from dataclasses import replace
+
+    from r2s.diagnose.stats.ranking import fit_effect
+
+    effect = get_effect("com_offset")
+    res = Residuals(physics=_physics(com_x=0.02), support=_support(0.0))
+    fit = fit_effect(effect, res, effect.penalty)
+    assert fit.penalty == pytest.approx(2.0 * np.log(100.0))
+    assert fit.score == pytest.approx(fit.delta_bic + 2.0 * np.log(100.0))
+    entry = fit.params["objects"]["7"]
+    two = replace(fit, params={"objects": {"7": entry, "8": entry}})
+    assert effect.prior_penalty(two, effect.penalty) == pytest.approx(4.0 * np.log(100.0))
+
+
 def test_com_offset_line_search_without_contacts_moves_the_right_way():
     phys = _physics(com_x=0.02)
     objects = dict(phys.objects)

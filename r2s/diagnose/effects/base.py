@@ -144,6 +144,12 @@ class Effect:
     def fit(self, residuals: Residuals) -> EffectFit:
         raise NotImplementedError
 
+    def prior_penalty(self, fit: EffectFit, penalty: float) -> float:
+        """The prior penalty (BIC units) of ``fit``, given the effect's ``penalty``: the same
+        for every fit unless the effect says otherwise (a per-object effect whose prior odds
+        hold for each object it changes)."""
+        return penalty
+
     def apply_to_input(self, scene: InputScene, params: dict) -> InputScene:
         """The observation as this effect says it really is (default: unchanged)."""
         return scene

@@ -96,7 +96,8 @@ def fit_effect(effect: Effect, residuals: Residuals, penalty: float,
     """One effect fitted, with its prior penalty and (for an effect whose evidence is in
     the registration block and that passes the BIC bar) the explained SSE noise alone
     reaches in this scene."""
-    fit = replace(effect.fit(residuals), penalty=float(penalty))
+    fit = effect.fit(residuals)
+    fit = replace(fit, penalty=float(effect.prior_penalty(fit, penalty)))
     if (noise is not None and fit.identifiable and effect.evidence_block == "registration"
             and fit.score < -min_evidence):
         bar = effect.noise_bar(residuals, fit.n_params, noise.draws, noise.quantile,
