@@ -231,6 +231,21 @@ def test_com_offset_prior_odds_count_once_per_shifted_object():
     assert effect.prior_penalty(two, effect.penalty) == pytest.approx(4.0 * np.log(100.0))
 
 
+def test_com_offset_on_a_reconstructed_state_is_reported_not_applied():
+    """The same toppling object, its rollout marked as a reconstructed scene's (geomopt's
+    state, no ``com_from_rollout``): the 2 cm shift is named in the note, not fitted."""
+    from dataclasses import replace
+
+    phys = replace(_physics(com_x=0.02), stage="geomopt", density_evidence=False)
+    res = Residuals(physics=phys, support=_support(0.0))
+    fit = get_effect("com_offset").fit(res)
+    assert not fit.identifiable
+    assert "object 7: COM 2.0 cm off" in fit.note and "not applied" in fit.note
+    trusted = get_effect("com_offset").fit(
+        replace(res, physics=replace(phys, density_evidence=True)))
+    assert trusted.identifiable and trusted.size == pytest.approx(0.02, rel=0.05)
+
+
 def test_com_offset_line_search_without_contacts_moves_the_right_way():
     phys = _physics(com_x=0.02)
     objects = dict(phys.objects)

@@ -244,6 +244,10 @@ class PhysicsData:
     horizon_s: float = 1.0
     stage: Optional[str] = None
     """The stage whose state was rolled out (None: not from a scene)."""
+    density_evidence: bool = True
+    """May an object that rocks in this rollout count as evidence about its density (a COM
+    offset)? False for a reconstructed scene unless the user says so: such rocking is far
+    more often the shape or pose a little off."""
     sigma_translation_m: float = 0.015
     sigma_rotation_rad: float = float(np.radians(5.0))
     cap: float = 4.0

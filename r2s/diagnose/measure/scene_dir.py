@@ -62,6 +62,9 @@ class MeasureSettings:
     min_prior_points: int = 150
     max_rmse_m: float = 0.004
     physics_source: str = "auto"
+    com_from_rollout: bool = False
+    """Apply a COM offset fitted to an object that rocks in the rollout of the scene's
+    state (else it is only reported: see ``PhysicsData.density_evidence``)."""
     physics: bool = True
     horizon_s: float = 1.0
     sigma_translation_m: float = 0.015
@@ -235,7 +238,7 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
         physics = physics_residual(spec, np.asarray(state.gravity, dtype=np.float64), ok,
                                    settings.horizon_s, settings.sigma_translation_m,
                                    float(np.radians(settings.sigma_rotation_deg)), settings.cap)
-        physics = replace(physics, stage=stage)
+        physics = replace(physics, stage=stage, density_evidence=settings.com_from_rollout)
         push_path = paths.interaction / PUSH_FILE
         if push_path.is_file():
             progress("simulating the observed push", 0.8)
