@@ -38,7 +38,8 @@ class Friction(PerObjectEffect):
         "makes the simulated push match the observed displacements (1-D search in log "
         "friction), kept when it explains more than its parameter costs; only for objects "
         "that rest in a rollout without the push of the state the push is simulated on "
-        "(physopt's when it ran; else the push measures the reconstruction), and whose "
+        "(geomopt's, with the default frictions, when the struck objects rest there; else "
+        "physopt's when it ran; else the push measures the reconstruction), and whose "
         "simulated push tilts them about as much as they were seen to tilt (no flip where "
         "they slid)."
     )
