@@ -99,11 +99,11 @@ PUSH_TRIES = 4
 """Synth seeds drawn for a friction scene until one has an object on the table to strike."""
 
 
-def add_row_depth_error(scene: Path, error_m: float = ROW_DEPTH_ERROR_M) -> None:
-    """Inject the uncatalogued effect into input/depth.png (recorded in gt/ only)."""
+def _rewrite_depth(scene: Path, transform) -> None:
+    """input/depth.png rewritten as ``transform(depth_m)`` ((H, W) metres, NaN = no
+    reading), in camera.json's depth unit."""
     from PIL import Image
 
-    from r2s.io.scene_json import read_gt_scene  # noqa: F401  (gt/ stays readable)
     from r2s.synth.files import depth_png, write_png
 
     paths = ScenePaths(scene)
@@ -111,13 +111,26 @@ def add_row_depth_error(scene: Path, error_m: float = ROW_DEPTH_ERROR_M) -> None
     unit = float(cam.get("depth_unit_m", 0.001))
     raw = np.asarray(Image.open(paths.depth_png), dtype=np.float64)
     depth = np.where(raw > 0, raw * unit, np.nan)
-    h = depth.shape[0]
-    rows = (np.arange(h) - (h - 1) / 2) / ((h - 1) / 2)
-    write_png(paths.depth_png, depth_png(depth + error_m * rows[:, None] ** 2, unit))
-    gt_path = paths.gt / "scene.json"
+    write_png(paths.depth_png, depth_png(transform(depth), unit))
+
+
+def _record_injected(scene: Path, key: str, record: dict) -> None:
+    """What the script injected, in gt/scene.json's ``injected_effects[key]`` only."""
+    gt_path = ScenePaths(scene).gt / "scene.json"
     gt = json.loads(gt_path.read_text())
-    gt.setdefault("injected_effects", {})["depth_row_error_m"] = {"value": error_m}
+    gt.setdefault("injected_effects", {})[key] = record
     gt_path.write_text(json.dumps(gt, indent=1))
+
+
+def add_row_depth_error(scene: Path, error_m: float = ROW_DEPTH_ERROR_M) -> None:
+    """Inject the uncatalogued effect into input/depth.png (recorded in gt/ only)."""
+    def transform(depth: np.ndarray) -> np.ndarray:
+        h = depth.shape[0]
+        rows = (np.arange(h) - (h - 1) / 2) / ((h - 1) / 2)
+        return depth + error_m * rows[:, None] ** 2
+
+    _rewrite_depth(scene, transform)
+    _record_injected(scene, "depth_row_error_m", {"value": error_m})
 
 
 def add_disparity_bias(scene: Path, error_at_1m: float = DISPARITY_ERROR_AT_1M) -> None:
@@ -125,22 +138,10 @@ def add_disparity_bias(scene: Path, error_at_1m: float = DISPARITY_ERROR_AT_1M) 
     a constant error in disparity, so depth reads z / (1 - c z), too far by about c z^2
     (``error_at_1m`` at 1 m), a depth error no catalogued effect is (a scale and an offset
     are linear in z)."""
-    from PIL import Image
-
-    from r2s.synth.files import depth_png, write_png
-
-    paths = ScenePaths(scene)
-    cam = json.loads((paths.input / "camera.json").read_text())
-    unit = float(cam.get("depth_unit_m", 0.001))
-    raw = np.asarray(Image.open(paths.depth_png), dtype=np.float64)
-    depth = np.where(raw > 0, raw * unit, np.nan)
     c = error_at_1m / (1.0 + error_at_1m)  # 1 m reads 1 + error_at_1m
-    write_png(paths.depth_png, depth_png(depth / (1.0 - c * depth), unit))
-    gt_path = paths.gt / "scene.json"
-    gt = json.loads(gt_path.read_text())
-    gt.setdefault("injected_effects", {})["disparity_bias"] = {
-        "error_at_1m_m": error_at_1m, "inverse_depth_offset_per_m": c}
-    gt_path.write_text(json.dumps(gt, indent=1))
+    _rewrite_depth(scene, lambda depth: depth / (1.0 - c * depth))
+    _record_injected(scene, "disparity_bias",
+                     {"error_at_1m_m": error_at_1m, "inverse_depth_offset_per_m": c})
 
 
 def add_focal_error(scene: Path, error: float = FOCAL_ERROR) -> None:
@@ -153,10 +154,7 @@ def add_focal_error(scene: Path, error: float = FOCAL_ERROR) -> None:
     cam["K"][0][0] = true_k[0][0] * (1.0 + error)
     cam["K"][1][1] = true_k[1][1] * (1.0 + error)
     cam_path.write_text(json.dumps(cam, indent=1))
-    gt_path = paths.gt / "scene.json"
-    gt = json.loads(gt_path.read_text())
-    gt.setdefault("injected_effects", {})["focal_error"] = {"value": error, "true_K": true_k}
-    gt_path.write_text(json.dumps(gt, indent=1))
+    _record_injected(scene, "focal_error", {"value": error, "true_K": true_k})
 
 
 def add_principal_point_error(scene: Path, error: float = PRINCIPAL_POINT_ERROR) -> None:
@@ -170,16 +168,13 @@ def add_principal_point_error(scene: Path, error: float = PRINCIPAL_POINT_ERROR)
     cam["K"][0][2] = true_k[0][2] + shift_px[0]
     cam["K"][1][2] = true_k[1][2] + shift_px[1]
     cam_path.write_text(json.dumps(cam, indent=1))
-    gt_path = paths.gt / "scene.json"
-    gt = json.loads(gt_path.read_text())
-    gt.setdefault("injected_effects", {})["principal_point_error"] = {
-        "value": error, "shift_px": shift_px, "true_K": true_k}
-    gt_path.write_text(json.dumps(gt, indent=1))
+    _record_injected(scene, "principal_point_error",
+                     {"value": error, "shift_px": shift_px, "true_K": true_k})
 
 
 SCRIPT_INJECT = {"row_depth": add_row_depth_error, "focal_error": add_focal_error,
-                       "principal_point_error": add_principal_point_error,
-                       "disparity_bias": add_disparity_bias}
+                 "principal_point_error": add_principal_point_error,
+                 "disparity_bias": add_disparity_bias}
 """case -> the function that injects it into a synthesised scene."""
 
 
