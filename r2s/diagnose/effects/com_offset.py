@@ -102,7 +102,6 @@ class ComOffset(PerObjectEffect):
                                     "implausible COM")
         trials.sort(key=lambda t: -t[0])
         kept = {t[1]: t[2] for t in trials if t[0] > penalty} or {trials[0][1]: trials[0][2]}
-        after = trials[0][3] if len(kept) == 1 else with_shifts(residuals, kept)
         params = {"objects": {str(i): shift_params(phys, i, s) for i, s in kept.items()}}
         if not phys.density_evidence:
             return not_identifiable(
@@ -111,6 +110,7 @@ class ComOffset(PerObjectEffect):
                 f"(SSE -{trials[0][0]:.1f}), but an object that rocks there is more often "
                 "a little off in shape or pose: reported, not applied (com_from_rollout=true "
                 "applies it)")
+        after = trials[0][3] if len(kept) == 1 else with_shifts(residuals, kept)
         size = max(float(np.linalg.norm(s)) for s in kept.values())
         return make_fit(self.name, residuals, after, params, self.n_params * len(kept), size,
                         "m", note=self.describe(params))
