@@ -163,3 +163,24 @@ def test_picture_paints_violations_red_and_keeps_size():
     assert pic.shape == (H + 18, W, 3)
     assert tuple(pic[50, 75]) == (255, 0, 0)
     assert tuple(pic[5, 5]) == (60, 60, 60)  # untouched background is dimmed to 60 %
+
+
+def test_an_instance_without_an_object_counts_as_a_miss():
+    """Two instances of 40 x 40 and 20 x 10 px, the first rendered exactly and the second
+    not reconstructed: it is reported missing with IoU 0, and the pooled IoU is
+    1600 / (1600 + 200) instead of 1.0 (the worst IoU stays the first's: the second mask
+    is under 1,000 px)."""
+    masks = mask_of(40, 79, 30, 69) + mask_of(100, 119, 30, 39, obj_id=2)
+    depth = np.full((H, W), 1.0)
+    scene = observe_scene([slab(40, 79, 30, 69, top_z=0.2)], [1], K, CAMERA, depth, masks,
+                          mask_ids=[1, 2])
+    lost = scene.objects[-1]
+    assert (lost.id, lost.missing, lost.iou, lost.mask_px, lost.rendered_px) == (2, True, 0.0,
+                                                                               200, 0)
+    assert scene.pooled_iou == pytest.approx(1600 / 1800, abs=1e-12)
+    summary = scene.summary()
+    assert summary["missing_objects"] == 1 and scene.missing_ids == [2]
+    assert summary["min_silhouette_iou"] == pytest.approx(1.0)
+    # without the view's ids the lost instance is not seen: the old, flattering score
+    assert observe_scene([slab(40, 79, 30, 69, top_z=0.2)], [1], K, CAMERA, depth,
+                         masks).pooled_iou == pytest.approx(1.0)

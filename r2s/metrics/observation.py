@@ -71,6 +71,11 @@ def render_objects(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
     return RenderedObjects(ids=lookup[g.object_index + 1], depth_m=g.depth_m.astype(np.float64))
 
 
+def instance_ids(masks: np.ndarray) -> list[int]:
+    """The instance ids present in an (H, W) int mask image (0 = none), ascending."""
+    return [int(i) for i in np.unique(masks) if i > 0]
+
+
 def silhouette_iou(rendered_ids: np.ndarray, masks: np.ndarray, ids: Sequence[int]
                    ) -> tuple[dict[int, Optional[float]], Optional[float]]:
     """Per-object and pooled IoU of rendered silhouettes against instance masks.
@@ -162,6 +167,9 @@ class ObjectObservation:
     """free-space pixels / mask pixels (None for an empty mask)."""
     displacement_m: Optional[float] = None
     displacement_deg: Optional[float] = None
+    missing: bool = False
+    """True for an instance of the masks that the reconstruction has no object for: it
+    counts as IoU 0 in the pooled and the worst IoU (nothing was rendered there)."""
 
 
 @dataclass
@@ -176,7 +184,8 @@ class SceneObservation:
 
     def summary(self) -> dict:
         """Scene-level numbers: pooled IoU, worst IoU over objects with >= LARGE_MASK_PX mask
-        pixels, mean free-space violation, mean UCD, largest displacement."""
+        pixels (a missing object's is 0), mean free-space violation, mean UCD, largest
+        displacement, and how many instances of the masks have no object."""
         def mean(vals: list) -> Optional[float]:
             vals = [v for v in vals if v is not None]
             return float(np.mean(vals)) if vals else None
@@ -194,7 +203,13 @@ class SceneObservation:
             "ucd_mm": mean([o.ucd_mm for o in self.objects]),
             "max_displacement_m": max(disp) if disp else None,
             "max_displacement_deg": max(rot) if rot else None,
+            "missing_objects": len(self.missing_ids),
         }
+
+    @property
+    def missing_ids(self) -> list[int]:
+        """Instances of the masks the reconstruction has no object for."""
+        return [o.id for o in self.objects if o.missing]
 
     def object_dicts(self) -> list[dict]:
         return [asdict(o) for o in self.objects]
@@ -205,8 +220,8 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
                   init_world_from_object: Optional[dict[int, np.ndarray]] = None,
                   world_from_object: Optional[dict[int, np.ndarray]] = None,
                   centres_in_object: Optional[dict[int, np.ndarray]] = None,
-                  band_px: float = FREE_SPACE_BAND_PX, margin_m: float = FREE_SPACE_MARGIN_M
-                  ) -> SceneObservation:
+                  band_px: float = FREE_SPACE_BAND_PX, margin_m: float = FREE_SPACE_MARGIN_M,
+                  mask_ids: Optional[Sequence[int]] = None) -> SceneObservation:
     """All observation metrics of world-frame meshes against one RGB-D view.
 
     Parameters
@@ -217,10 +232,16 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
     init_world_from_object, world_from_object, centres_in_object : per id, the init pose,
         the current pose (4, 4) and the object-frame point whose motion is the
         displacement (e.g. the mesh centroid); displacement is None for ids missing there.
+    mask_ids : the instances the view shows (default: ``ids``). Those without a mesh are
+        appended to the objects as ``missing`` (IoU 0, nothing rendered) and count in the
+        pooled IoU with their whole mask: an object the reconstruction lost is a miss, not
+        a blank in the score.
     """
     height, width = masks.shape
     rendered = render_objects(meshes_world, ids, K, world_from_camera, width, height)
-    per_iou, pooled = silhouette_iou(rendered.ids, masks, ids)
+    lost = [int(i) for i in (mask_ids if mask_ids is not None else ()) if int(i) not in
+            {int(j) for j in ids}]
+    per_iou, pooled = silhouette_iou(rendered.ids, masks, [*ids, *lost])
     violation = np.zeros(masks.shape, dtype=bool)
     objects = []
     for mesh, i in zip(meshes_world, ids):
@@ -243,6 +264,11 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
             free_space_px=int(fs.sum()),
             free_space_violation=float(fs.sum()) / mask_px if mask_px else None,
             displacement_m=disp[0], displacement_deg=disp[1]))
+    for i in lost:
+        mask_px = int((masks == i).sum())
+        objects.append(ObjectObservation(
+            id=i, mask_px=mask_px, rendered_px=0, observed_points=0, iou=0.0, ucd_mm=None,
+            free_space_px=0, free_space_violation=None, missing=True))
     return SceneObservation(objects=objects, pooled_iou=pooled, violation_map=violation,
                             rendered=rendered)
 

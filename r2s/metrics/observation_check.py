@@ -75,17 +75,24 @@ def check_observation(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
                       init_world_from_object: Optional[dict[int, np.ndarray]],
                       centres_in_object: dict[int, np.ndarray],
                       tolerances: FlagTolerances = FlagTolerances(),
-                      earlier_flags: Optional[dict[int, str]] = None) -> ObservationCheck:
+                      earlier_flags: Optional[dict[int, str]] = None,
+                      mask_ids: Optional[Sequence[int]] = None) -> ObservationCheck:
     """Measure and flag every object (arguments as :func:`observe_scene`).
 
-    ``earlier_flags``: id -> reason for objects an earlier stage flagged.
+    ``earlier_flags``: id -> reason for objects an earlier stage flagged. An instance of
+    ``mask_ids`` without an object gets a warning line and no block.
     """
     scene = observe_scene(meshes_world, ids, K, world_from_camera, depth_m, masks,
-                          init_world_from_object, world_from_object, centres_in_object)
+                          init_world_from_object, world_from_object, centres_in_object,
+                          mask_ids=mask_ids)
     earlier = earlier_flags or {}
     blocks: dict[int, dict] = {}
     warnings: list[str] = []
     for o in scene.objects:
+        if o.missing:
+            warnings.append(f"instance {o.id} of the masks ({o.mask_px} px) has no object in "
+                            "the twin")
+            continue
         reasons = []
         if o.id in earlier:
             reasons.append(earlier[o.id])

@@ -44,8 +44,8 @@ from r2s.io.paths import METRICS_FILE, ScenePaths
 from r2s.io.scene_json import ExportObject, GtScene, read_gt_scene
 from r2s.metrics.geometry import (centroid_error_mm, posed, rotation_error_deg, surface_metrics,
                                   volumetric_iou)
-from r2s.metrics.observation import (SceneObservation, observation_picture, observe_scene,
-                                     picture_colour)
+from r2s.metrics.observation import (SceneObservation, instance_ids, observation_picture,
+                                     observe_scene, picture_colour)
 from r2s.metrics.penetration import (PYBULLET_MESH_MARGIN_M, SUPPORT_ID, PenetrationMetrics,
                                      penetration_metrics, scene_distances)
 from r2s.metrics.rendering import render_scene_rgb, rendering_metrics, side_by_side_png
@@ -65,7 +65,7 @@ SCENE_KEYS: tuple[str, ...] = (
     "chamfer_mm", "fscore", "fscore_threshold_mm", "iou", "centroid_error_mm",
     "rotation_error_deg", "mass_rel_error", "psnr", "ssim", "lpips",
     "silhouette_iou", "min_silhouette_iou", "free_space_violation", "ucd_mm",
-    "max_displacement_m", "max_displacement_deg", "flagged_objects",
+    "max_displacement_m", "max_displacement_deg", "flagged_objects", "missing_objects",
 )
 """Scene-level keys of metrics.json (and of the stage summary)."""
 
@@ -129,7 +129,7 @@ def _observation(paths: ScenePaths, export_objects: list, model: dict
               for o in export_objects]
     ids = [o.id for o in export_objects]
     scene = observe_scene(meshes, ids, view.camera.K, view.camera.world_from_camera,
-                          view.depth_m, view.masks)
+                          view.depth_m, view.masks, mask_ids=instance_ids(view.masks))
     for entry, o in zip(scene.objects, export_objects):  # displacement as export measured it
         block = (o.model_extra or {}).get("observation") or {}
         entry.displacement_m = block.get("displacement_m")
@@ -158,7 +158,8 @@ def _add_observation(objects: list[dict], export_objects: list,
         entry["flagged"] = flagged
     scene = observed.summary() if observed is not None else {
         k: None for k in ("silhouette_iou", "min_silhouette_iou", "free_space_violation",
-                          "ucd_mm", "max_displacement_m", "max_displacement_deg")}
+                          "ucd_mm", "max_displacement_m", "max_displacement_deg",
+                          "missing_objects")}
     scene["flagged_objects"] = sum(flags)
     return scene
 
@@ -353,7 +354,8 @@ def run(ctx: StageContext) -> dict:
             "pybullet_mesh_margin_m": PYBULLET_MESH_MARGIN_M,
         },
         "rendering": rendering,
-        "observation": {"measured": observed is not None, "reason": observation_reason or None},
+        "observation": {"measured": observed is not None, "reason": observation_reason or None,
+                        "missing_ids": observed.missing_ids if observed is not None else []},
         "engine": options.engine,
         "rollout": {"duration_s": sim.traj.duration_s, "samples": int(len(sim.traj.times_s))},
         "gt": {"present": gt is not None, "matched_ids": sorted(export_ids & gt_ids),

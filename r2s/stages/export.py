@@ -23,6 +23,7 @@ from r2s.io.input_scene import load_camera, load_input
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import PHYSOPT_COLLISION_DIR, ScenePaths
 from r2s.io.state import read_state
+from r2s.metrics.observation import instance_ids
 from r2s.metrics.observation_check import (SEEN_TOLERANCE_DEG, SEEN_TOLERANCE_M, FlagTolerances,
                                           check_observation)
 from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, SEEN_POSE_KEY
@@ -168,7 +169,7 @@ def _observation(paths: ScenePaths, items: list[ObjectItem], opt: Options, model
         [item.id for item in items], view.camera.K, view.camera.world_from_camera,
         view.depth_m, view.masks, {item.id: np.asarray(item.pose) for item in items},
         init_poses, {item.id: np.asarray(m.centroid) for m, item in zip(meshes, items)},
-        opt.tolerances(), earlier)
+        opt.tolerances(), earlier, mask_ids=instance_ids(view.masks))
     summary = {k: None if v is None else round(float(v), 4)
                for k, v in check.scene.summary().items()}
     return check.blocks, check.warnings, summary
