@@ -349,3 +349,27 @@ def test_synth_command_line_rejects_bad_sets_in_one_line(tmp_path: Path, sets: l
     assert len(lines) == 1 and what in lines[0], proc.stderr
     assert "Traceback" not in proc.stderr + proc.stdout
     assert not (tmp_path / "s").exists()
+
+
+def test_a_depthless_object_stays_in_the_masks_without_a_reading(tmp_path: Path) -> None:
+    """``depthless=1``: one object of >= 1000 px reads no depth at all (cause code 9 in
+    gt/realism/depth_causes.png) and keeps its mask; load_input reports it as not
+    reconstructable from depth (skipped_ids) with its spec kept for init."""
+    from PIL import Image
+
+    from r2s.synth.realistic import NO_RETURN_CAUSE
+
+    out = tmp_path / "scene"
+    synthesize(out, SynthOptions(seed=11, **{**SMALL_REAL, "width": 640, "height": 480},
+                                 depthless=1))
+    gt = json.loads((out / "gt" / "scene.json").read_text())
+    (lost,) = gt["realism"]["depthless_ids"]
+    exact = np.asarray(Image.open(out / "gt" / "realism" / "masks_exact.png"))
+    causes = np.asarray(Image.open(out / "gt" / "realism" / "depth_causes.png"))
+    own = exact == lost
+    assert own.sum() >= 1000 and np.all(causes[own] == NO_RETURN_CAUSE)
+    scene = load_input(out)
+    read = np.isfinite(scene.depth_m) & (scene.masks == lost)
+    assert not read[own].any()  # readings left in its mask are the segmenter's bleed
+    assert lost in scene.skipped_ids and [o.id for o in scene.skipped_objects] == [lost]
+    assert SynthOptions(seed=11, **SMALL_REAL).record().get("depthless") is None

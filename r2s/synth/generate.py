@@ -52,7 +52,7 @@ TABLE_SIZE_M = 3.0
 
 # Independent random streams, so that e.g. the noise level does not change the objects.
 _STREAMS = ("select", "body", "place", "effect", "camera", "noise", "prior", "texture", "order",
-            "masks")  # new streams go at the end: the earlier ones keep their numbers
+            "masks", "depthless")  # new streams go at the end: the earlier ones keep their numbers
 
 
 def _streams(seed: int) -> dict[str, np.random.Generator]:
@@ -227,10 +227,12 @@ def synthesize(out_dir: Path, options: SynthOptions,
         n = len(placed.bodies)
         frame = distorted_frame(frame, K, effects)
         realism_record: dict = {}
-        if options.depth_model == "default" and options.mask_model == "exact":
+        if (options.depth_model == "default" and options.mask_model == "exact"
+                and options.depthless == 0):
             obs = _observe(frame, K, options, effects, rngs["noise"], n)
         else:
-            real = realistic.observe(frame, K, options, effects, rngs["noise"], rngs["masks"], n)
+            real = realistic.observe(frame, K, options, effects, rngs["noise"], rngs["masks"], n,
+                                     depthless_rng=rngs["depthless"])
             obs = _Observation(rgb=real.rgb, depth_m=real.depth_m, masks=real.masks,
                                visible_px=real.visible_px, in_input=real.in_input)
             realism_record = real.record

@@ -18,7 +18,7 @@ REALSENSE_PRESET: dict[str, str] = {"camera_model": "realsense", "mask_model": "
 REALSENSE_ELEVATION_DEG = (27.0, 50.0)
 """Elevation of ``camera_model=realsense``: 40-63 degrees from looking straight down."""
 REALISM_FIELDS = ("realism", "camera_model", "hfov_deg", "mask_model", "depth_model",
-                  "prior_model", "prior_pose")
+                  "prior_model", "prior_pose", "depthless")
 
 
 class SynthOptions(BaseModel):
@@ -81,6 +81,11 @@ class SynthOptions(BaseModel):
         "default", description="default: mild prior errors; single_image: proportions off by "
                                "up to 15 % per axis, smoothed, 10-20 mm Chamfer; none: no "
                                "priors.")
+    depthless: int = Field(
+        0, ge=0, description="This many visible objects (of at least 1000 px, drawn at "
+                             "random) read no depth at all, as transparent, black or "
+                             "mirror-like ones do; they stay in the masks "
+                             "(gt/scene.json realism.depthless_ids).")
     prior_pose: Literal["perturbed", "exact"] = Field(
         "perturbed", description="world_from_prior: the true pose turned by 10-20 deg and "
                                  "shifted by 1-4 cm (perturbed) or the true pose (exact).")

@@ -46,10 +46,17 @@ class RealisticObservation:
     record: dict = field(default_factory=dict)
 
 
+DEPTHLESS_MIN_PX = 1000
+"""An object made to read no depth (``depthless``) shows at least this many pixels."""
+NO_RETURN_CAUSE = 9
+"""gt/realism/depth_causes.png code of the pixels of a ``depthless`` object."""
+
+
 def observe(frame: Frame, K: np.ndarray, options: SynthOptions, effects: Effects,
-            noise_rng: np.random.Generator, mask_rng: np.random.Generator, n: int
-            ) -> RealisticObservation:
-    """Depth, masks and RGB of a realistic scene with ``n`` gt objects."""
+            noise_rng: np.random.Generator, mask_rng: np.random.Generator, n: int,
+            depthless_rng: np.random.Generator | None = None) -> RealisticObservation:
+    """Depth, masks and RGB of a realistic scene with ``n`` gt objects; with
+    ``options.depthless``, that many objects (drawn with ``depthless_rng``) read no depth."""
     scale = effects.depth_scale if effects.depth_scale is not None else 1.0
     offset = effects.depth_offset_m or 0.0
     record: dict = {"depth_model": options.depth_model, "mask_model": options.mask_model}
@@ -69,6 +76,17 @@ def observe(frame: Frame, K: np.ndarray, options: SynthOptions, effects: Effects
                                           scale=scale, offset_m=offset)
         cause = np.zeros(depth.shape, dtype=np.uint8)
 
+    depthless: list[int] = []
+    if options.depthless > 0:
+        big = [k for k in range(n) if int((frame.segment == k).sum()) >= DEPTHLESS_MIN_PX]
+        rng = depthless_rng if depthless_rng is not None else np.random.default_rng(0)
+        depthless = sorted(int(k) for k in rng.permutation(big)[:options.depthless])
+        for k in depthless:
+            gone = frame.segment == k
+            depth = np.where(gone, np.nan, depth)
+            cause = np.where(gone, NO_RETURN_CAUSE, cause).astype(np.uint8)
+        record["depthless_ids"] = [k + 1 for k in depthless]
+
     exact = np.zeros(frame.segment.shape, dtype=np.int32)
     visible_px = np.zeros(n, dtype=np.int64)
     in_input = np.zeros(n, dtype=bool)
@@ -76,7 +94,8 @@ def observe(frame: Frame, K: np.ndarray, options: SynthOptions, effects: Effects
     for k in range(n):
         seen = frame.segment == k
         visible_px[k] = int(seen.sum())
-        if visible_px[k] >= options.min_visible_px and int((seen & valid).sum()) >= MIN_MASK_PIXELS:
+        readable = int((seen & valid).sum()) >= MIN_MASK_PIXELS or k in depthless
+        if visible_px[k] >= options.min_visible_px and readable:
             in_input[k] = True
             exact[seen] = k + 1
 
