@@ -397,31 +397,41 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
                                         xs, ys, zs, cell)
     if exclude is not None:
         field, _ = _carve(field, exclude, world_from_pl, xs, ys, zs, cell)
-    field = np.pad(field, 1, mode="constant", constant_values=-cell)
-    # a node exactly on the level set makes degenerate triangles: nudge it outside
-    field[np.abs(field) < 1e-6 * cell] = -1e-6 * cell
-    verts, faces, _, _ = marching_cubes(field, level=0.0, spacing=(cell, cell, cell),
-                                        gradient_direction="ascent")
-    verts += np.array([x0, y0, z0]) - cell
-    mesh = trimesh.Trimesh(verts, faces, process=False)
-    if mesh.volume < 0:
-        mesh.invert()
-
-    # object frame: plane axes, origin at the footprint centre on the mesh's base
-    lo_m, hi_m = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
-    centre = np.array([*(0.5 * (lo_m[:2] + hi_m[:2])), float(lo_m[2])])
-    mesh.apply_translation(-centre)
-    plane_from_object = np.eye(4)
-    plane_from_object[:3, 3] = centre
-    world_from_object = world_from_pl @ plane_from_object
-
+    mesh, centre = mesh_field(field, np.array([x0, y0, z0]), cell)
     if colors is not None:
         cols = np.asarray(colors)[keep]
         _, nn = cKDTree(pts - centre).query(mesh.vertices)
         rgba = np.concatenate([cols[nn, :3], np.full((len(nn), 1), 255)], axis=1)
         mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=rgba.astype(np.uint8))
-    return CompletedShape(mesh=mesh, world_from_object=world_from_object,
+    plane_from_object = np.eye(4)
+    plane_from_object[:3, 3] = centre
+    return CompletedShape(mesh=mesh, world_from_object=world_from_pl @ plane_from_object,
                           bottom_m=float(centre[2]), carved_fraction=carved_fraction)
+
+
+def mesh_field(field: np.ndarray, origin: np.ndarray, cell: float
+               ) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """The closed surface of a solid sampled on a grid, in its object frame.
+
+    field : (nx, ny, nz) positive inside, on the grid ``origin + cell * index`` (plane
+    frame, metres); origin : (3,) the first node.
+
+    Returns the mesh (object frame: the plane's axes, origin at the centre of its
+    footprint's bounding box on its base) and that origin in the plane frame (3,).
+    """
+    padded = np.pad(field, 1, mode="constant", constant_values=-cell)
+    # a node exactly on the level set makes degenerate triangles: nudge it outside
+    padded[np.abs(padded) < 1e-6 * cell] = -1e-6 * cell
+    verts, faces, _, _ = marching_cubes(padded, level=0.0, spacing=(cell, cell, cell),
+                                        gradient_direction="ascent")
+    verts += np.asarray(origin, dtype=np.float64) - cell
+    mesh = trimesh.Trimesh(verts, faces, process=False)
+    if mesh.volume < 0:
+        mesh.invert()
+    lo_m, hi_m = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    centre = np.array([*(0.5 * (lo_m[:2] + hi_m[:2])), float(lo_m[2])])
+    mesh.apply_translation(-centre)
+    return mesh, centre
 
 
 def _hidden_extension(sdf: np.ndarray, top: np.ndarray, gx: np.ndarray, gy: np.ndarray,

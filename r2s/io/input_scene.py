@@ -13,13 +13,15 @@ from typing import Optional
 
 import numpy as np
 from PIL import Image
+from scipy import ndimage
 from pydantic import BaseModel, ConfigDict, ValidationError, field_validator, model_validator
 
 from r2s.errors import InputError
 from r2s.io.paths import ScenePaths
 
 MIN_MASK_PIXELS = 20
-"""An instance with fewer pixels with valid depth than this is skipped with a warning."""
+"""An instance with fewer pixels with valid depth than this is not reconstructed from depth
+(a warning; init may build it from its silhouette)."""
 
 TABLE_DEPTH_RANGE_M = (0.05, 10.0)
 """Median depth outside this range is an error: the depth unit is wrong (a tabletop seen
@@ -195,6 +197,9 @@ class InputScene:
     skipped_ids: list[int] = field(default_factory=list)
     """Instances in ``masks`` left out (too few pixels with valid depth); named in
     ``warnings``."""
+    skipped_objects: list[ObjectSpec] = field(default_factory=list)
+    """Their :class:`ObjectSpec` (label, prior) for what can be made of a mask without
+    depth (init's silhouette completion)."""
     merged_ids: dict[int, int] = field(default_factory=dict)
     """``{mask id: object id}`` of ids taken as pieces of another object (set by
     ``scene_model.corrected_input``; their pixels carry the object's id in ``masks``)."""
@@ -208,6 +213,26 @@ class InputScene:
             if o.id == obj_id:
                 return o
         raise KeyError(obj_id)
+
+
+INNER_EDGE_PX = 2
+"""The mask's outline band: bleed and mixed readings put other surfaces' depth there."""
+MIN_INNER_READ = 0.02
+"""An instance whose mask has an inside (>= 100 px past its outline band) of which fewer
+than this share (and fewer than MIN_MASK_PIXELS pixels) read depth is not reconstructed
+from depth: its readings are the segmenter's bleed onto what is around it, and the object
+itself (transparent, black, mirror-like) read nothing."""
+
+
+def _unread_inside(mask: np.ndarray, depth_m: np.ndarray) -> str:
+    """Why ``mask``'s own surface read no depth though some of its pixels did, or ""."""
+    inner = ndimage.binary_erosion(mask, iterations=INNER_EDGE_PX)
+    n = int(inner.sum())
+    read = int((inner & np.isfinite(depth_m)).sum())
+    if n < 100 or read >= MIN_MASK_PIXELS or read >= MIN_INNER_READ * n:
+        return ""
+    return (f"read depth on only {read} of the {n} pixels inside its outline (the rest of its "
+            "readings are at its edge, where masks bleed): not reconstructed from depth")
 
 
 def _first_error(exc: ValidationError) -> str:
@@ -385,14 +410,9 @@ def load_input(scene_dir: Path) -> InputScene:
     ids = sorted(int(i) for i in np.unique(masks) if i > 0)
     objects: list[ObjectSpec] = []
     skipped: list[int] = []
+    skipped_specs: list[ObjectSpec] = []
     for obj_id in ids:
         visible = int(((masks == obj_id) & np.isfinite(depth)).sum())
-        if visible < MIN_MASK_PIXELS:
-            skipped.append(obj_id)
-            warnings.append(f"{paths.masks}: instance {obj_id} has only {visible} pixel"
-                            f"{'' if visible == 1 else 's'} with valid depth (need "
-                            f"{MIN_MASK_PIXELS}); it is skipped")
-            continue
         entry = entries.get(obj_id)
         prior, pose, label = None, None, f"object_{obj_id}"
         if entry is not None:
@@ -404,8 +424,17 @@ def load_input(scene_dir: Path) -> InputScene:
                                      f"missing prior mesh of object {obj_id}")
             if entry.world_from_prior is not None:
                 pose = np.asarray(entry.world_from_prior, dtype=np.float64)
-        objects.append(ObjectSpec(id=obj_id, label=label, prior_mesh=prior, world_from_prior=pose,
-                                  declared=entry is not None))
+        spec = ObjectSpec(id=obj_id, label=label, prior_mesh=prior, world_from_prior=pose,
+                          declared=entry is not None)
+        unread = _unread_inside(masks == obj_id, depth) if visible >= MIN_MASK_PIXELS else None
+        if visible < MIN_MASK_PIXELS or unread:
+            skipped.append(obj_id)
+            skipped_specs.append(spec)
+            warnings.append(f"{paths.masks}: instance {obj_id} " + (
+                unread or f"has only {visible} pixel{'' if visible == 1 else 's'} with valid "
+                          f"depth (need {MIN_MASK_PIXELS} to reconstruct it from depth)"))
+            continue
+        objects.append(spec)
     if not objects:
         raise InputError(paths.masks, f"no instance has {MIN_MASK_PIXELS} pixels with valid "
                          f"depth (instances {', '.join(map(str, skipped))})")
@@ -414,4 +443,4 @@ def load_input(scene_dir: Path) -> InputScene:
         for i in sorted(set(entries) - set(ids))
     ]
     return InputScene(rgb=rgb, depth_m=depth, masks=masks, camera=camera, objects=objects,
-                      warnings=warnings, skipped_ids=skipped)
+                      warnings=warnings, skipped_ids=skipped, skipped_objects=skipped_specs)

@@ -55,7 +55,9 @@ from r2s.geometry.completion import complete_from_points
 from r2s.geometry.hidden_partition import Claimant, exclusion, overlaps
 from r2s.geometry.free_space import view_constraint
 from r2s.geometry.mask_edges import foreign_rim_pixels
+from r2s.geometry.mask_holes import fill_mask_holes
 from r2s.geometry.point_cleanup import object_point_mask
+from r2s.geometry.silhouette_completion import complete_from_silhouette
 from r2s.geometry.overlay import fit_overlay, render_instances
 from r2s.geometry.prior_choice import (ChoiceMargins, Rest, choose, score_in_view,
                                        stands_alone_on_table)
@@ -175,6 +177,14 @@ class Options(StageOptions):
         True, description="Before completing, drop mask points on the support plane and "
                           "regions of the mask across a depth jump from the object's main "
                           "surface (bleed; see geometry/point_cleanup.py).")
+    completion_fill_holes_px: float = Field(
+        0.0, ge=0, description="Before completing, give each mask pixel without a depth "
+                               "reading within this many pixels of a kept point that "
+                               "point's depth (dark, glossy and thin surfaces, the band "
+                               "along depth edges), so the footprint covers the mask "
+                               "(try 6). Off by default: on the realistic set it raised "
+                               "init's IoU but physopt moved the larger shapes apart "
+                               "(docs/completion.md). 0 = off (see geometry/mask_holes.py).")
     completion_carve: bool = Field(
         True, description="Carve a completed object against the depth image: no material "
                           "where the camera saw past it (see geometry/carving.py).")
@@ -195,6 +205,13 @@ class Options(StageOptions):
         0.0, ge=0, description="Sweep a completed object's footprint towards the camera "
                                "into space hidden by nearer things, by up to this fraction "
                                "of its visible size (0 = off; see geometry/completion.py).")
+    silhouette_min_px: int = Field(
+        200, ge=0, description="An instance whose mask has too few depth readings to be "
+                               "completed (a transparent, black or mirror-like object) is "
+                               "built from its silhouette standing on the table when its "
+                               "mask has at least this many pixels; source 'silhouette', "
+                               "with a warning (see geometry/silhouette_completion.py). "
+                               "0 = never: such instances are left out.")
     support_points_max: int = Field(20000, ge=100, description="Most support-plane points "
                                     "kept in support_points.npy.")
     seed: int = Field(0, description="Random seed (RANSAC, subsampling).")
@@ -452,12 +469,16 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
         keep = object_point_mask(pts, pix, depth, plane.point, plane.normal,
                                  neighbour_pixels=others_px)
         pts, pix = pts[keep], pix[keep]
+    filled, filled_pix = fill_mask_holes(scene.masks == spec.id, scene.depth_m, pix, cam.K,
+                                         cam.world_from_camera, o.completion_fill_holes_px,
+                                         others=(scene.masks > 0) & (scene.masks != spec.id))
     table = (plane.point, plane.normal) if o.completion_carve_table else None
     view = (carve_view(cam.K, cam.world_from_camera, scene.depth_m, pix, plane=table)
             if o.completion_carve else None)
     try:
-        shape = complete_from_points(pts, plane.point, plane.normal,
-                                     colors=scene.rgb[pix[:, 0], pix[:, 1]],
+        both_pix = np.concatenate([pix, filled_pix])
+        shape = complete_from_points(np.concatenate([pts, filled]), plane.point, plane.normal,
+                                     colors=scene.rgb[both_pix[:, 0], both_pix[:, 1]],
                                      cell_m=o.completion_cell_m, below_points_world=others,
                                      hull_margin_m=o.completion_hull_margin_px * pixel_m,
                                      view=view,
@@ -525,6 +546,33 @@ def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple
         mesh, world_from_object = _complete(scene, spec, observed, plane, o,
                                             exclude=redo[spec.id], under=under)
         shapes[spec.id] = (mesh, world_from_object, None)
+
+
+def _from_silhouette(scene: InputScene, spec: ObjectSpec, plane: PlaneFit, o: Options,
+                     out: Path) -> tuple[ObjectState, trimesh.Trimesh] | str:
+    """An object for an instance whose mask read (almost) no depth, built from its
+    silhouette (:mod:`r2s.geometry.silhouette_completion`): its state entry and world-frame
+    mesh, with its mesh and (empty) points written; or the warning line why not."""
+    cam = scene.camera
+    mask = scene.masks == spec.id
+    if o.silhouette_min_px <= 0 or mask.sum() < o.silhouette_min_px:
+        return f"object {spec.id}: its mask read no depth and is too small to guess a shape from"
+    view = carve_view(cam.K, cam.world_from_camera, scene.depth_m, np.argwhere(mask),
+                      hole_fill_px=0, plane=(plane.point, plane.normal))
+    try:
+        shape = complete_from_silhouette(mask, cam.K, cam.world_from_camera, plane.point,
+                                         plane.normal, view=view, cell_m=o.completion_cell_m,
+                                         color=np.median(scene.rgb[mask], axis=0))
+    except ValueError as exc:
+        return f"object {spec.id}: its mask read no depth and its silhouette gives no shape ({exc})"
+    save_mesh(shape.mesh, out / "meshes" / f"{spec.id}.glb")
+    np.save(out / "points" / f"{spec.id}.npy", np.zeros((0, 3), dtype=np.float32))
+    state = ObjectState(id=spec.id, label=spec.label, mesh=f"meshes/{spec.id}.glb",
+                        world_from_object=shape.world_from_object.tolist(), source="silhouette",
+                        observed_points=f"points/{spec.id}.npy", num_observed_points=0)
+    mesh_w = shape.mesh.copy()
+    mesh_w.apply_transform(shape.world_from_object)
+    return state, mesh_w
 
 
 def _result_flags(obj_id: int, fitness: float, mesh: trimesh.Trimesh,
@@ -608,25 +656,38 @@ def run(ctx: StageContext) -> dict:
         if state.source == "prior":
             rmses.append(rmse)
 
+    for spec in scene.skipped_objects:
+        built = _from_silhouette(scene, spec, plane, o, out)
+        if isinstance(built, str):
+            flags.append(built)
+            continue
+        objects.append(built[0])
+        posed.append(built[1])
+        flags.append(f"object {spec.id}: its mask read no depth; its shape is a guess from "
+                     "its silhouette standing on the table (source 'silhouette')")
+    order = np.argsort([ob.id for ob in objects], kind="stable")
+    objects, posed = [objects[k] for k in order], [posed[k] for k in order]
+
     ctx.progress("overlay", 0.95)
     rendered = render_instances(posed, cam.K, cam.world_from_camera, cam.width, cam.height)
     atomic_write_bytes(out / "init.png",
-                       _png_bytes(fit_overlay(scene.rgb, rendered, scene.masks, scene.ids,
-                                              zoom_to_px=1000,
-                                              labels={o.id: o.label for o in scene.objects})))
+                       _png_bytes(fit_overlay(scene.rgb, rendered, scene.masks,
+                                              [ob.id for ob in objects], zoom_to_px=1000,
+                                              labels={ob.id: ob.label for ob in objects})))
     write_state(out, SceneState(stage="init", gravity=list(DEFAULT_GRAVITY),
                                 support=_support_plane(plane), objects=objects))
     ctx.progress("done", 1.0)
     finite = [r for r in rmses if np.isfinite(r)]
-    fitnesses = [float(ob.icp_fitness) for ob in objects]
+    fitnesses = [float(ob.icp_fitness) for ob in objects if ob.source != "silhouette"]
     return {
-        "objects": len(scene.objects),
+        "objects": len(objects),
         "completed": sum(1 for ob in objects if ob.source == "completed"),
+        "from_silhouette": [ob.id for ob in objects if ob.source == "silhouette"],
         "prior_choice": {str(i): c["chosen"] for i, c in sorted(choices.items())},
         "mean_icp_rmse_mm": round(1000 * float(np.mean(finite)), 3) if finite else None,
         "min_fitness": round(min(fitnesses), 4) if fitnesses else None,
         "support_inlier_fraction": round(float(plane.inliers.mean()), 4),
-        "skipped": list(scene.skipped_ids),
+        "skipped": [i for i in scene.skipped_ids if i not in {ob.id for ob in objects}],
         "flags": flags,
     }
 

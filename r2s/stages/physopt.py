@@ -267,7 +267,8 @@ def _trimmed_pieces(ctx: StageContext, state: SceneState, meshes: dict, poses: d
     if mode == "off":
         return _Pieces(pieces, {}, {})
     ctx.progress("collision pieces against the neighbours", 0.1)
-    only = None if mode == "all" else {o.id for o in state.objects if o.source == "completed"}
+    only = None if mode == "all" else {o.id for o in state.objects
+                                       if o.source in ("completed", "silhouette")}
     trimmed, reports = trim_scene_pieces(pieces, meshes, poses, only=only,
                                          max_split_depth=ctx.options.trim_split_levels)
     return _Pieces(trimmed, reports, {})
