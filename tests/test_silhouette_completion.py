@@ -119,3 +119,21 @@ def test_init_builds_an_object_without_depth_from_its_silhouette(tmp_path: Path)
     off = run_single_stage(scene, "init", {"silhouette_min_px": 0})
     ids = [o["id"] for o in json.loads((scene / "init" / "state.json").read_text())["objects"]]
     assert ids == [1] and off.summary["skipped"] == [2]
+
+
+def test_space_a_seen_object_fills_is_left_to_it():
+    """``exclude`` marks the half-space x > 0 as another object's: the glass's guess keeps
+    out of it (to within half a grid cell of 3 mm) and keeps the rest."""
+    camera, depth, mask = _glass_without_depth(50.0)
+    view = carve_view(K, camera, depth, np.argwhere(mask), hole_fill_px=0,
+                      plane=(np.zeros(3), UP))
+    whole = complete_from_silhouette(mask, K, camera, np.zeros(3), UP, view=view)
+    cut = complete_from_silhouette(mask, K, camera, np.zeros(3), UP, view=view,
+                                   exclude=lambda pts: pts[:, 0] > 0.0)
+    world = cut.mesh.copy()
+    world.apply_transform(cut.world_from_object)
+    assert world.bounds[1, 0] <= 0.0015 + 1e-9
+    whole_w = whole.mesh.copy()
+    whole_w.apply_transform(whole.world_from_object)
+    assert whole_w.bounds[1, 0] > 0.03 and world.bounds[0, 0] == pytest.approx(
+        whole_w.bounds[0, 0], abs=1e-9)

@@ -17,7 +17,8 @@ in the support plane's frame (z up) from three facts and one guess:
    (grown by ``mask_grow_px``) or behind something nearer (another object's reading in
    front of it, :func:`r2s.geometry.carving.hidden_by_other`: an occluded base).
 3. *Nothing where the camera saw past* (:func:`r2s.geometry.carving.seen_free`, the table
-   exact when the view has the plane).
+   exact when the view has the plane), nor inside the objects that were seen (``exclude``):
+   a guess gives way to what was measured.
 4. *The guess:* from its front edge the object reaches back along the view as far as it
    is wide across it (a round or a square object), never beyond its shadow; and its top
    is where the strip's highest mask ray (the one that meets the table farthest) passes
@@ -33,6 +34,8 @@ the plane frame is :func:`r2s.geometry.plane.world_from_plane`.
 """
 
 from __future__ import annotations
+
+from typing import Callable
 
 import numpy as np
 from scipy import ndimage
@@ -56,7 +59,9 @@ def complete_from_silhouette(mask: np.ndarray, K: np.ndarray, world_from_camera:
                              view: CarveView | None = None, cell_m: float = 0.003,
                              max_cells: int = 100, max_height_m: float = 0.5,
                              mask_grow_px: int = MASK_GROW_PX,
-                             color: np.ndarray | None = None) -> CompletedShape:
+                             color: np.ndarray | None = None,
+                             exclude: Callable[[np.ndarray], np.ndarray] | None = None
+                             ) -> CompletedShape:
     """A closed mesh of an object seen only as a mask, standing on the support plane.
 
     Parameters
@@ -69,6 +74,8 @@ def complete_from_silhouette(mask: np.ndarray, K: np.ndarray, world_from_camera:
     cell_m : grid cell (grown so no side has more than ``max_cells`` cells).
     max_height_m : the tallest object considered.
     color : (3,) uint8 colour of the mesh, or None.
+    exclude : world points (M, 3) -> (M,) bool, space other objects fill (they were seen;
+        this one was not), removed like free space.
 
     Returns
     -------
@@ -155,6 +162,8 @@ def complete_from_silhouette(mask: np.ndarray, K: np.ndarray, world_from_camera:
     if view is not None:
         inside |= below_cap & hidden_by_other(view, nodes_w)
         inside &= ~seen_free(view, nodes_w)
+    if exclude is not None and inside.any():
+        inside[inside] = ~exclude(nodes_w[inside])
     field = np.full((len(xs), len(ys), len(zs)), -cell)
     flat = inside.reshape(len(ci), len(zs))
     field[ci[:, None], cj[:, None], np.arange(len(zs))[None, :]] = np.where(flat, cell, -cell)

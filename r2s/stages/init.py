@@ -549,10 +549,12 @@ def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple
 
 
 def _from_silhouette(scene: InputScene, spec: ObjectSpec, plane: PlaneFit, o: Options,
-                     out: Path) -> tuple[ObjectState, trimesh.Trimesh] | str:
+                     out: Path, seen: Sequence[Claimant]
+                     ) -> tuple[ObjectState, trimesh.Trimesh] | str:
     """An object for an instance whose mask read (almost) no depth, built from its
-    silhouette (:mod:`r2s.geometry.silhouette_completion`): its state entry and world-frame
-    mesh, with its mesh and (empty) points written; or the warning line why not."""
+    silhouette (:mod:`r2s.geometry.silhouette_completion`) outside the objects that were
+    seen (``seen``: they own all of their inside): its state entry and world-frame mesh,
+    with its mesh and (empty) points written; or the warning line why not."""
     cam = scene.camera
     mask = scene.masks == spec.id
     if o.silhouette_min_px <= 0 or mask.sum() < o.silhouette_min_px:
@@ -562,7 +564,8 @@ def _from_silhouette(scene: InputScene, spec: ObjectSpec, plane: PlaneFit, o: Op
     try:
         shape = complete_from_silhouette(mask, cam.K, cam.world_from_camera, plane.point,
                                          plane.normal, view=view, cell_m=o.completion_cell_m,
-                                         color=np.median(scene.rgb[mask], axis=0))
+                                         color=np.median(scene.rgb[mask], axis=0),
+                                         exclude=_inside_any(seen))
     except ValueError as exc:
         return f"object {spec.id}: its mask read no depth and its silhouette gives no shape ({exc})"
     save_mesh(shape.mesh, out / "meshes" / f"{spec.id}.glb")
@@ -573,6 +576,14 @@ def _from_silhouette(scene: InputScene, spec: ObjectSpec, plane: PlaneFit, o: Op
     mesh_w = shape.mesh.copy()
     mesh_w.apply_transform(shape.world_from_object)
     return state, mesh_w
+
+
+def _inside_any(claimants: Sequence[Claimant]) -> Optional[Callable[[np.ndarray], np.ndarray]]:
+    """``f(points (M, 3) world) -> (M,) bool``, inside any of ``claimants``' meshes; None
+    for none."""
+    if not claimants:
+        return None
+    return lambda pts: np.any([c.inside(pts) for c in claimants], axis=0)
 
 
 def _result_flags(obj_id: int, fitness: float, mesh: trimesh.Trimesh,
@@ -656,8 +667,9 @@ def run(ctx: StageContext) -> dict:
         if state.source == "prior":
             rmses.append(rmse)
 
+    seen = [Claimant(mesh_w, np.zeros((0, 3)), is_prior=True) for mesh_w in posed]
     for spec in scene.skipped_objects:
-        built = _from_silhouette(scene, spec, plane, o, out)
+        built = _from_silhouette(scene, spec, plane, o, out, seen)
         if isinstance(built, str):
             flags.append(built)
             continue
