@@ -60,23 +60,27 @@ CASES: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
                         ("depth_offset", "friction")),
     "row_depth": ({}, ()),
     "disparity_bias": ({}, ()),
+    "dark_depth": ({}, ()),
     "focal_error": ({}, ("focal_length",)),
     "principal_point_error": ({}, ()),
 }
 """case -> (synth effects, the effects diagnose should name). ``row_depth``,
-``principal_point_error`` and ``disparity_bias`` are outside the catalogue
+``principal_point_error``, ``disparity_bias`` and ``dark_depth`` are outside the catalogue
 (:func:`add_row_depth_error`, :func:`add_principal_point_error`,
-:func:`add_disparity_bias`, injected by this script only): diagnose should report them as
-unexplained structure and name nothing. ``focal_error`` (:func:`add_focal_error`,
+:func:`add_disparity_bias`, :func:`add_dark_depth_bias`, injected by this script only):
+diagnose should report them as unexplained structure and name nothing. ``focal_error`` (:func:`add_focal_error`,
 injected by this script too) is in the catalogue as ``focal_length``."""
 
-UNCATALOGUED = {"row_depth", "principal_point_error", "disparity_bias"}
+UNCATALOGUED = {"row_depth", "principal_point_error", "disparity_bias", "dark_depth"}
 ROW_DEPTH_ERROR_M = 0.006
+"""The uncatalogued effect: depth reads long by 6 mm x (row offset from the centre,
+-1..1)^2, a gutter along the image rows."""
 DISPARITY_ERROR_AT_1M = 0.01
 """The disparity bias of ``disparity_bias``: 1 m reads 1.01 m (0.6 m reads about 3.6 mm
 too far)."""
-"""The uncatalogued effect: depth reads long by 6 mm x (row offset from the centre,
--1..1)^2, a gutter along the image rows."""
+DARK_DEPTH_ERROR_M = 0.008
+"""``dark_depth``: a surface reads too far by 8 mm x (1 - its luminance), as dark,
+light-absorbing materials do on active depth sensors (a black pixel 8 mm, a white one 0)."""
 FOCAL_ERROR = 0.04
 """The second uncatalogued effect: camera.json declares fx, fy (1 + 0.04) times the true
 ones (a mis-calibrated focal length); the images are the true camera's."""
@@ -144,6 +148,18 @@ def add_disparity_bias(scene: Path, error_at_1m: float = DISPARITY_ERROR_AT_1M) 
                      {"error_at_1m_m": error_at_1m, "inverse_depth_offset_per_m": c})
 
 
+def add_dark_depth_bias(scene: Path, error_m: float = DARK_DEPTH_ERROR_M) -> None:
+    """Inject a depth error that depends on the surface's colour into input/depth.png
+    (recorded in gt/ only): each pixel reads ``error_m * (1 - luminance)`` too far, the
+    luminance (Rec. 601, 0..1) of input/rgb.png there."""
+    from PIL import Image
+
+    rgb = np.asarray(Image.open(ScenePaths(scene).rgb).convert("RGB"), dtype=np.float64)
+    luminance = (0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]) / 255.0
+    _rewrite_depth(scene, lambda depth: depth + error_m * (1.0 - luminance))
+    _record_injected(scene, "dark_depth", {"error_black_m": error_m})
+
+
 def add_focal_error(scene: Path, error: float = FOCAL_ERROR) -> None:
     """Inject the mis-declared focal length: input/camera.json's fx, fy become (1 + error)
     times the true ones (recorded in gt/ only; gt/scene.json's camera keeps the true K)."""
@@ -174,7 +190,7 @@ def add_principal_point_error(scene: Path, error: float = PRINCIPAL_POINT_ERROR)
 
 SCRIPT_INJECT = {"row_depth": add_row_depth_error, "focal_error": add_focal_error,
                  "principal_point_error": add_principal_point_error,
-                 "disparity_bias": add_disparity_bias}
+                 "disparity_bias": add_disparity_bias, "dark_depth": add_dark_depth_bias}
 """case -> the function that injects it into a synthesised scene."""
 
 

@@ -145,7 +145,7 @@ def complete_from_silhouette(mask: np.ndarray, K: np.ndarray, world_from_camera:
     gs = rel @ forward
     with np.errstate(invalid="ignore", divide="ignore"):
         strip = np.floor(((rel @ across) / gs - b_lo) / step).astype(int)
-    valid = (strip >= 0) & (strip < n_strips)
+    valid = (gs > 0) & (strip >= 0) & (strip < n_strips)
     strip = np.clip(strip, 0, n_strips - 1)
     column = valid & (gs >= near[strip]) & (gs <= back[strip])
     cap = np.maximum(height[strip], 2 * cell)  # (nx, ny) height of each column
@@ -157,8 +157,8 @@ def complete_from_silhouette(mask: np.ndarray, K: np.ndarray, world_from_camera:
                          np.tile(zs, len(ci))], axis=1)
     nodes_w = transform_points(world_from_pl, nodes_pl)
     below_cap = nodes_pl[:, 2] - base <= np.repeat(cap[ci, cj], len(zs)) + 0.5 * cell
-    inside = below_cap & _in_mask(ndimage.binary_dilation(m, iterations=mask_grow_px)
-                      if mask_grow_px > 0 else m, nodes_w, K, wfc)
+    grown = ndimage.binary_dilation(m, iterations=mask_grow_px) if mask_grow_px > 0 else m
+    inside = below_cap & _in_mask(grown, nodes_w, K, wfc)
     if view is not None:
         inside |= below_cap & hidden_by_other(view, nodes_w)
         inside &= ~seen_free(view, nodes_w)
