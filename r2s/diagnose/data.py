@@ -309,11 +309,19 @@ class DepthMapData:
     residual_m : (H, W) float, NaN where either is missing or the ids disagree.
     depth_m : (H, W) observed depth.
     on_object : (H, W) bool, pixels of an object (else table).
+    object_id : (H, W) int, the object whose rendered surface the residual is taken against
+        (0: table or none), or None.
+    grey : (H, W) grey level 0..1 of the image, or None.
+    prior_ids : the objects whose shape is a registered prior (a completion is built from
+        the same depth, so its residual says nothing about the depth's errors).
     """
 
     residual_m: np.ndarray
     depth_m: np.ndarray
     on_object: np.ndarray
+    object_id: Optional[np.ndarray] = None
+    grey: Optional[np.ndarray] = None
+    prior_ids: tuple = ()
 
 
 # ---- table shape: the table points' distance to one plane (r2s.diagnose.stats.table_shape) -----

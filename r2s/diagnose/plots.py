@@ -168,3 +168,35 @@ def structure_figure(finding, width: int, height: int, title: str) -> bytes:
     data = _png(fig)
     plt.close(fig)
     return data
+
+
+def colour_figure(finding, title: str) -> bytes:
+    """PNG bytes of a colour-dependent depth error (:class:`r2s.diagnose.stats.colour_test.
+    ColourFinding`): each registered prior's patch residuals against their grey level, with
+    its fitted line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.6))
+    for oid, (grey, resid_mm) in sorted(finding.points.items()):
+        g, r = np.asarray(grey, dtype=float), np.asarray(resid_mm, dtype=float)
+        line = ax.plot(g, r, "o", ms=3, alpha=0.6,
+                       label=f"object {oid}: {finding.slopes_mm[oid]:+.1f} mm, "
+                             f"t {finding.z_by_object[oid]:+.1f}")[0]
+        if np.ptp(g) > 0:
+            coef = np.polyfit(g, r, 1)
+            xs = np.array([g.min(), g.max()])
+            ax.plot(xs, np.polyval(coef, xs), "-", color=line.get_color(), lw=1.5)
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set_xlabel("grey level of the surface (0 black, 1 white)")
+    ax.set_ylabel("observed minus prior depth, 6 px patches (mm)")
+    ax.set_title(f"z = {finding.z:.1f} (reported at |z| >= {finding.z_threshold:.1f})",
+                 fontsize=9)
+    ax.legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    data = _png(fig)
+    plt.close(fig)
+    return data

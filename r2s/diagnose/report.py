@@ -114,7 +114,11 @@ def _decision_lines(report: dict) -> list[str]:
         lines.append("**No effect**: no candidate explains more of the residual than its "
                      "parameters cost (BIC) and than noise alone explains.")
     un = report.get("unexplained")
-    if un:
+    if un and un.get("test") == "surface colour":
+        lines.append(f"\n**Unexplained structured residual**: {un['pattern']} "
+                     f"(p = {un['p_value']:.2g}); no catalogued effect explains it "
+                     "(see structure.png).")
+    elif un:
         lines.append(f"\n**Unexplained structured residual**: {un['pattern']} "
                      f"(chi-square {un['chi2']:.0f} on {un['dof']} tiles' degrees of freedom, "
                      f"p = {un['p_value']:.2g}); no catalogued effect explains it "

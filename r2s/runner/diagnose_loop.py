@@ -35,6 +35,7 @@ from r2s.diagnose.stats.ranking import NoiseBar, Round, rank, supported
 from r2s.runner.rerun import rerun_with_effects, temporary_root
 from r2s.diagnose.measure.scene_dir import Measured, MeasureSettings, measure_scene, scene_gt_errors
 from r2s.diagnose.stats.steps import StepJudgement, claimed_blocks, judge_step, leaves_structure
+from r2s.diagnose.stats.colour_test import Z_THRESHOLD, ColourFinding, test_surface_colour
 from r2s.diagnose.stats.structure_test import StructureFinding, test_structure
 
 
@@ -52,6 +53,7 @@ class LoopConfig:
     rerun: bool = True
     rerun_stages: Optional[list] = None
     structure_alpha: float = 1e-3
+    colour_z: float = Z_THRESHOLD
     joint_refit: bool = True
     lookahead: bool = True
 
@@ -92,7 +94,7 @@ class LoopResult:
     steps: list
     rounds: list
     stages: list
-    unexplained: Optional[StructureFinding]
+    unexplained: Optional[StructureFinding | ColourFinding]
     structure_final: Optional[StructureFinding]
     notes: list
     copy: Optional[Path] = None
@@ -269,6 +271,9 @@ def run_loop(root: Path, settings: MeasureSettings, cfg: LoopConfig,
         final_structure = test_structure(current.residuals, cfg.structure_alpha)
         unexplained = final_structure if final_structure is not None and \
             final_structure.structured else None
+        if unexplained is None:  # the table is flat: is the objects' depth error colour's?
+            colour = test_surface_colour(current.residuals, cfg.colour_z)
+            unexplained = colour if colour is not None and colour.structured else None
         result = LoopResult(before, current, gt_before, gt_now if kept else None, kept, steps,
                             rounds, stages if kept else [], unexplained, final_structure, notes,
                             copies.current)

@@ -25,7 +25,8 @@ import numpy as np
 
 from r2s.diagnose.effects import all_effects
 from r2s.diagnose.stats.camera_or_table import camera_or_table
-from r2s.diagnose.plots import residual_figure, structure_figure
+from r2s.diagnose.plots import colour_figure, residual_figure, structure_figure
+from r2s.diagnose.stats.colour_test import ColourFinding
 from r2s.diagnose.stats.ranking import NoiseBar
 from r2s.diagnose.report import ReportInput, build_report, markdown
 from r2s.diagnose.measure.scene_dir import MeasureSettings
@@ -65,6 +66,11 @@ class Options(StageOptions):
                                               "explains in this share of the draws.")
     structure_alpha: float = Field(1e-3, gt=0, lt=1, description="Level of the test for "
                                                                  "structure in the residual.")
+    colour_z: float = Field(4.0, gt=0, description="A depth error that depends on the "
+                                                   "surface's grey level is reported when the "
+                                                   "registered priors' residual gives |z| at "
+                                                   "least this (diagnose/stats/colour_test.py; "
+                                                   "at most 2.0 on 20 clean scenes).")
     table_shape_sigma_m: float = Field(0.0004, gt=0, description="Noise of a table tile's "
                                                                  "mean distance to its plane.")
     rerun: bool = Field(True, description="Rerun the affected stages on a copy of the scene to "
@@ -194,7 +200,8 @@ def loop_config(options: Options) -> LoopConfig:
         noise=(NoiseBar(options.noise_draws, options.noise_quantile)
                if options.noise_draws > 0 else None),
         rerun=options.rerun, rerun_stages=options.rerun_stages or None,
-        structure_alpha=options.structure_alpha, joint_refit=options.joint_refit,
+        structure_alpha=options.structure_alpha, colour_z=options.colour_z,
+        joint_refit=options.joint_refit,
         lookahead=options.lookahead)
 
 
@@ -234,7 +241,11 @@ def run(ctx: StageContext) -> dict:
                                            title))
         finding = loop.unexplained or loop.structure_final
         shape = loop.final.residuals.table_shape
-        if finding is not None and shape is not None:
+        if isinstance(finding, ColourFinding):
+            atomic_write_bytes(ctx.out_dir / "structure.png", colour_figure(
+                finding, f"{paths.root.name}: residual left after the loop, unexplained "
+                         "structure"))
+        elif finding is not None and shape is not None:
             atomic_write_bytes(ctx.out_dir / "structure.png", structure_figure(
                 finding, shape.width, shape.height,
                 f"{paths.root.name}: residual left after the loop, "

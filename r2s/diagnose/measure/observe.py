@@ -186,7 +186,12 @@ def depth_residual_map(inp: InputScene, objects: list[ObjectModel],
                                    cam.width, cam.height)
         table = (inp.masks == 0) & np.isfinite(plane_depth)
         residual[table] = obs[table] - plane_depth[table]
-    return DepthMapData(residual_m=residual, depth_m=obs, on_object=inp.masks > 0)
+    grey = None
+    if inp.rgb is not None and np.asarray(inp.rgb).ndim == 3:
+        grey = np.asarray(inp.rgb, dtype=np.float64).mean(axis=2) / 255.0
+    return DepthMapData(residual_m=residual, depth_m=obs, on_object=inp.masks > 0,
+                        object_id=np.where(on_obj, inp.masks, 0).astype(np.int64), grey=grey,
+                        prior_ids=tuple(o.id for o in objects if o.prior_area_m2 is not None))
 
 
 def _plane_depth(K: np.ndarray, world_from_camera: np.ndarray, point: np.ndarray,

@@ -1,0 +1,138 @@
+"""Does the depth error depend on the surface's colour? A test on the registered priors.
+
+Active depth sensors read dark, light-absorbing surfaces too far (or too near), by an
+amount no catalogued effect has: it follows the texture, not the geometry. The table
+rarely shows it (a table is nearly one colour, and the table-shape test averages it over
+tiles), but the objects' textures do. A registered prior is a shape the depth did not
+make, so its residual (observed minus rendered depth, :class:`r2s.diagnose.data.
+DepthMapData`) carries the error; a completion is built from the same depth and does not.
+
+Per prior object, its pixels more than ``erode_px`` inside its mask (the outline's mixed
+readings left out) are averaged over ``patch_px`` x ``patch_px`` patches (neighbouring
+pixels share a sensor's noise and the prior's shape error; a patch is closer to one
+independent sample), and the patch residuals are regressed on the patches' grey level
+(with an intercept: the pose absorbs a constant). Each object gives a slope and its
+t statistic; the scene's statistic is their sum over sqrt(number of objects) (Stouffer),
+about standard normal when nothing depends on colour. ``|z| >= z_threshold`` is a
+colour-dependent depth error. The threshold is calibrated on 20 clean benchmark scenes
+(docs/diagnose.md: |z| at most 2.0 there).
+
+Units: residuals in metres, grey levels 0..1, slopes in metres per unit grey.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+from scipy import ndimage
+from scipy.stats import norm
+
+from r2s.diagnose.data import Residuals
+
+Z_THRESHOLD = 4.0
+PATCH_PX = 6
+ERODE_PX = 2
+OUTLIER_M = 0.01
+"""Pixels farther than this from their object's median residual are left out (a prior's
+part that is not there, an occluder's edge)."""
+MIN_PATCHES = 10
+MIN_GREY_SPREAD = 0.02
+"""An object whose patches' grey levels spread less than this (std) says nothing."""
+
+
+@dataclass(frozen=True)
+class ColourFinding:
+    """Outcome of :func:`test_surface_colour` (JSON-able through :meth:`summary`).
+
+    z : the scene's statistic; slopes_mm : per object id, residual per unit grey (mm; a
+    negative slope: darker reads farther); z_by_object : their t statistics; points : per
+    object, (grey, residual mm) of its patches, for the picture.
+    """
+
+    z: float
+    z_threshold: float
+    structured: bool
+    slopes_mm: dict = field(default_factory=dict)
+    z_by_object: dict = field(default_factory=dict)
+    points: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def p_value(self) -> float:
+        return float(2.0 * norm.sf(abs(self.z)))
+
+    @property
+    def slope_mm(self) -> float:
+        """The objects' median slope (mm per unit grey)."""
+        return float(np.median(list(self.slopes_mm.values()))) if self.slopes_mm else 0.0
+
+    @property
+    def pattern(self) -> str:
+        if not self.slopes_mm:
+            return "no pattern"
+        side = "darker surfaces read farther" if self.slope_mm < 0 else \
+            "darker surfaces read nearer"
+        return (f"the registered priors' depth residual depends on the surface's grey level: "
+                f"{side}, by {abs(self.slope_mm):.1f} mm from white to black (median over "
+                f"{len(self.slopes_mm)} objects; z = {self.z:.1f})")
+
+    def summary(self) -> dict:
+        return {"test": "surface colour", "chi2": self.z ** 2, "dof": 1,
+                "p_value": self.p_value, "alpha": float(2.0 * norm.sf(self.z_threshold)),
+                "structured": self.structured, "z": self.z, "z_threshold": self.z_threshold,
+                "slopes_mm": {str(k): v for k, v in self.slopes_mm.items()},
+                "z_by_object": {str(k): v for k, v in self.z_by_object.items()},
+                "best_feature": "grey", "pattern": self.pattern}
+
+
+def _patch_means(rows: np.ndarray, cols: np.ndarray, values: list[np.ndarray], patch_px: int
+                 ) -> list[np.ndarray]:
+    """Each of ``values`` (N,) averaged over the ``patch_px`` square patch of its pixel."""
+    key = (rows // patch_px) * 1_000_000 + (cols // patch_px)
+    _, inverse = np.unique(key, return_inverse=True)
+    count = np.bincount(inverse)
+    return [np.bincount(inverse, v) / count for v in values]
+
+
+def test_surface_colour(res: Residuals, z_threshold: float = Z_THRESHOLD,
+                        patch_px: int = PATCH_PX, erode_px: int = ERODE_PX
+                        ) -> Optional[ColourFinding]:
+    """The colour test of the module docstring; None without an image, priors or a depth
+    residual map."""
+    dm = res.depth_map
+    if dm is None or dm.grey is None or dm.object_id is None or not dm.prior_ids:
+        return None
+    slopes: dict[int, float] = {}
+    zs: dict[int, float] = {}
+    points: dict[int, tuple] = {}
+    for oid in dm.prior_ids:
+        own = dm.object_id == oid
+        if erode_px > 0:
+            own = ndimage.binary_erosion(own, iterations=erode_px)
+        own &= np.isfinite(dm.residual_m)
+        rows, cols = np.nonzero(own)
+        if len(rows) < MIN_PATCHES * patch_px:
+            continue
+        r = dm.residual_m[rows, cols]
+        keep = np.abs(r - np.median(r)) < OUTLIER_M
+        rows, cols, r = rows[keep], cols[keep], r[keep]
+        r_patch, g_patch = _patch_means(rows, cols, [r, dm.grey[rows, cols]], patch_px)
+        if len(r_patch) < MIN_PATCHES or np.std(g_patch) < MIN_GREY_SPREAD:
+            continue
+        g = g_patch - g_patch.mean()
+        design = np.stack([np.ones_like(g), g], axis=1)
+        coef, *_ = np.linalg.lstsq(design, r_patch, rcond=None)
+        dof = len(r_patch) - 2
+        s2 = float(np.sum((r_patch - design @ coef) ** 2)) / dof
+        se = np.sqrt(s2 / float(np.sum(g * g)))
+        if not np.isfinite(se) or se <= 0:
+            continue
+        slopes[int(oid)] = float(coef[1] * 1000.0)
+        zs[int(oid)] = float(coef[1] / se)
+        points[int(oid)] = (g_patch.tolist(), (r_patch * 1000.0).tolist())
+    if not zs:
+        return None
+    z = float(sum(zs.values()) / np.sqrt(len(zs)))
+    return ColourFinding(z=z, z_threshold=float(z_threshold), structured=abs(z) >= z_threshold,
+                         slopes_mm=slopes, z_by_object=zs, points=points)
