@@ -12,7 +12,8 @@ benchmark does not depend on r2s's internals. Read from ``evaluate/metrics.json`
   and slivers have no gt and are left out);
 - observation consistency where evaluate reports it (``n/a`` otherwise): UCD, pooled
   silhouette IoU, the worst IoU of an object with a mask of >= 1000 px, free-space
-  violation (mean over objects), objects flagged.
+  violation (mean over objects), objects flagged, and instances of the masks the twin has
+  no object for ("missing"; evaluate counts them as IoU 0).
 
 ``--peer DIR`` (repeatable) adds a scene made elsewhere (e.g. ``../shared/seed_demo/ycb5``,
 a plate of fruit with the authors' SAM 3D priors) in both sets: copied as it is for the
@@ -25,6 +26,10 @@ Usage:
   python scripts/bench_realistic.py --scenes 0 --peer ../shared/seed_demo/ycb5
   python scripts/bench_realistic.py --root bench/heldout --scenes 4 --count 8 --seed 77 \
       --block heldout --out docs/realistic.md     # scenes nothing was tuned on
+  python scripts/bench_realistic.py --root bench/depthless --only "no prior" \
+      --synth-set depthless=1 --block depthless --out docs/realistic.md
+      # one object per scene reads no depth (add --run-set init.silhouette_min_px=0 and
+      # another --root and --block to leave such objects out, as before)
 Scenes go to bench/realistic/; a scene whose evaluate/metrics.json exists is not rerun
 (``--rerun`` reruns r2s on every scene; ``--table-only`` only rebuilds the table).
 """
@@ -71,7 +76,7 @@ def make_scene(root: Path, k: int, variant: str, args: argparse.Namespace) -> Pa
     scene = root / f"scene_{k:02d}_{_slug(variant)}"
     if (scene / "gt" / "scene.json").is_file():
         return scene
-    extra = dict(VARIANTS)[variant]
+    extra = dict(VARIANTS)[variant] + [a for kv in args.synth_set for a in ("--set", kv)]
     done = _r2s("synth", str(scene), "--seed", str(1000 * args.seed + k), "--count",
                 str(args.count), *extra)
     if done.returncode != 0:
@@ -105,14 +110,15 @@ def _elevation_deg(scene: Path, gt: dict) -> float:
     return math.degrees(math.asin(max(-1.0, min(1.0, -float(pose[2][2])))))
 
 
-def run_scene(scene: Path, rerun: bool, texture: bool) -> dict:
-    """r2s run on ``scene`` (unless its metrics exist); returns the seconds and the return
-    code (``None`` when it was not run)."""
+def run_scene(scene: Path, rerun: bool, texture: bool, sets: list[str]) -> dict:
+    """r2s run on ``scene`` (unless its metrics exist), with ``--set`` of each of ``sets``;
+    returns the seconds and the return code (``None`` when it was not run)."""
     metrics = scene / "evaluate" / "metrics.json"
     record = scene / "bench_realistic.json"
     if metrics.is_file() and record.is_file() and not rerun:
         return json.loads(record.read_text())
     cmd = ["run", str(scene)] + ([] if texture else ["--skip", "texture"])
+    cmd += [a for kv in sets for a in ("--set", kv)]
     if rerun:
         cmd.append("--force")
     t0 = time.perf_counter()
@@ -149,6 +155,8 @@ def scene_row(scene: Path, variant: str, run: dict) -> dict:
     matched = [o for o in objs if o["id"] in gt_ids]
     large = [o.get("silhouette_iou") for o in objs
              if (o.get("mask_px") or 0) >= LARGE_MASK_PX and o.get("silhouette_iou") is not None]
+    if m.get("missing_objects") is not None:  # evaluate's worst IoU counts a lost object as 0
+        large = [m["min_silhouette_iou"]] if m.get("min_silhouette_iou") is not None else []
     row.update({
         "objects": len(objs), "stable": sum(bool(o["stable"]) for o in objs),
         "chamfer": [o.get("chamfer_mm") for o in matched],
@@ -157,6 +165,7 @@ def scene_row(scene: Path, variant: str, run: dict) -> dict:
         "free_space": [o.get("free_space_violation") for o in objs],
         "iou": m.get("silhouette_iou"), "min_iou": min(large) if large else
         m.get("min_silhouette_iou"), "flagged": m.get("flagged_objects"),
+        "missing": m.get("missing_objects"),
     })
     return row
 
@@ -168,20 +177,22 @@ def _fmt(value: Optional[float], digits: int = 1) -> str:
 def _cells(rows: list[dict]) -> list[str]:
     done = [r for r in rows if "objects" in r]
     if not done:
-        return ["failed"] + ["n/a"] * 7
+        return ["failed"] + ["n/a"] * (len(HEADER) - 1)
     n = sum(r["objects"] for r in done)
     ok = sum(r["stable"] for r in done)
     pooled = lambda key: _mean([v for r in done for v in r[key]])  # noqa: E731
     mins = [r["min_iou"] for r in done if r["min_iou"] is not None]
     flagged = [r["flagged"] for r in done if r["flagged"] is not None]
+    missing = [r.get("missing") for r in done if r.get("missing") is not None]
     return [f"{100.0 * ok / n:.0f}% ({ok}/{n})", _fmt(pooled("chamfer")),
             _fmt(pooled("centroid")), _fmt(pooled("ucd")),
             _fmt(_mean([r["iou"] for r in done]), 3), _fmt(min(mins) if mins else None, 2),
-            _fmt(pooled("free_space"), 3), str(sum(flagged)) if flagged else "n/a"]
+            _fmt(pooled("free_space"), 3), str(sum(flagged)) if flagged else "n/a",
+            str(sum(missing)) if missing else "n/a"]
 
 
 HEADER = ["stable", "CD [mm]", "centroid err [mm]", "UCD [mm]", "silhouette IoU",
-          "min IoU (>= 1000 px)", "free-space violation", "flagged"]
+          "min IoU (>= 1000 px)", "free-space violation", "flagged", "missing"]
 
 
 def table(rows: list[dict]) -> str:
@@ -226,6 +237,11 @@ def main() -> None:
                     help="make and run only this set (the table then has only its rows)")
     ap.add_argument("--peer", type=Path, action="append", default=[],
                     help="a scene made elsewhere (input/ and gt/), run in both sets")
+    ap.add_argument("--synth-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="one more r2s synth option for every scene made (repeatable), e.g. "
+                         "depthless=1")
+    ap.add_argument("--run-set", action="append", default=[], metavar="STAGE.KEY=VALUE",
+                    help="one more r2s run option (repeatable), e.g. init.silhouette_min_px=0")
     ap.add_argument("--block", default="bench_realistic",
                     help="name of the generated block in --out (another name keeps a second "
                          "table, e.g. the held-out scenes, beside the benchmark's)")
@@ -242,7 +258,8 @@ def main() -> None:
                 continue
             scene = (make_scene(args.root, k, variant, args) if peer is None
                      else make_peer(args.root, peer, variant))
-            run = {} if args.table_only else run_scene(scene, args.rerun, args.texture)
+            run = {} if args.table_only else run_scene(scene, args.rerun, args.texture,
+                                                       args.run_set)
             if args.table_only:
                 record = scene / "bench_realistic.json"
                 run = json.loads(record.read_text()) if record.is_file() else {}
