@@ -32,7 +32,7 @@ def _scene(residual_of_grey, seed: int = 0, prior_ids=(1, 2, 3), by_row: float =
 
 def test_dark_surfaces_read_farther_is_found_and_sized():
     """8 mm x (1 - grey): the slope is -8 mm per unit grey in every object; found (|z| far
-    above 4) with the median slope within 1.5 mm of -8."""
+    above the threshold of 6) with the median slope within 1.5 mm of -8."""
     found = colour_test(_scene(lambda g: 0.008 * (1.0 - g)))
     assert found is not None and found.structured
     assert found.z < -10

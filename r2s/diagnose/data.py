@@ -314,6 +314,8 @@ class DepthMapData:
     grey : (H, W) grey level 0..1 of the image, or None.
     prior_ids : the objects whose shape is a registered prior (a completion is built from
         the same depth, so its residual says nothing about the depth's errors).
+    view_cosine : (H, W) |cosine| between the pixel's ray and the rendered surface's normal
+        (NaN: none), or None.
     """
 
     residual_m: np.ndarray
@@ -322,6 +324,7 @@ class DepthMapData:
     object_id: Optional[np.ndarray] = None
     grey: Optional[np.ndarray] = None
     prior_ids: tuple = ()
+    view_cosine: Optional[np.ndarray] = None
 
 
 # ---- table shape: the table points' distance to one plane (r2s.diagnose.stats.table_shape) -----

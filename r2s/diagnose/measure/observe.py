@@ -26,7 +26,7 @@ from r2s.diagnose.measure.physics import (BodySpec, WorldSpec, rollout_motion, s
 from r2s.diagnose.stats.noise import scale_noise_level
 from r2s.diagnose.stats.table_height import declares_table
 from r2s.diagnose.measure.scale_fit import SurfaceModel, fit_prior_scale, free_space
-from r2s.geometry.camera import backproject, camera_center
+from r2s.geometry.camera import backproject, camera_center, pixel_rays
 from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexParams
 from r2s.geometry.mass_properties import mass_properties
@@ -174,7 +174,8 @@ def depth_residual_map(inp: InputScene, objects: list[ObjectModel],
     against the fitted plane."""
     cam = inp.camera
     meshes = [o.mesh.copy().apply_transform(o.world_from_object) for o in objects]
-    rendered, index, _ = raycast_view(meshes, cam.K, cam.world_from_camera, cam.width, cam.height)
+    rendered, index, triangle = raycast_view(meshes, cam.K, cam.world_from_camera, cam.width,
+                                             cam.height)
     ids = np.array([o.id for o in objects] + [-1])
     rendered_id = np.where(index >= 0, ids[np.clip(index, 0, len(objects))], 0)
     obs = inp.depth_m.astype(np.float64)
@@ -191,7 +192,25 @@ def depth_residual_map(inp: InputScene, objects: list[ObjectModel],
         grey = np.asarray(inp.rgb, dtype=np.float64).mean(axis=2) / 255.0
     return DepthMapData(residual_m=residual, depth_m=obs, on_object=inp.masks > 0,
                         object_id=np.where(on_obj, inp.masks, 0).astype(np.int64), grey=grey,
-                        prior_ids=tuple(o.id for o in objects if o.prior_area_m2 is not None))
+                        prior_ids=tuple(o.id for o in objects if o.prior_area_m2 is not None),
+                        view_cosine=_view_cosine(meshes, index, triangle, cam.K,
+                                                 cam.world_from_camera))
+
+
+def _view_cosine(meshes_world: list, index: np.ndarray, triangle: np.ndarray, K: np.ndarray,
+                 world_from_camera: np.ndarray) -> np.ndarray:
+    """(H, W) |cosine| between each pixel's ray and the normal of the rendered triangle it
+    hits (NaN where none): 1 facing the camera, 0 grazing."""
+    height, width = index.shape
+    _, dirs = pixel_rays(K, world_from_camera, width, height)
+    out = np.full(index.shape, np.nan)
+    for k, mesh in enumerate(meshes_world):
+        hit = (index == k) & (triangle >= 0)
+        if hit.any():
+            normals = np.asarray(mesh.face_normals)[triangle[hit]]
+            ray = dirs[hit] / np.linalg.norm(dirs[hit], axis=1, keepdims=True)
+            out[hit] = np.abs(np.sum(normals * ray, axis=1))
+    return out
 
 
 def _plane_depth(K: np.ndarray, world_from_camera: np.ndarray, point: np.ndarray,
