@@ -31,7 +31,8 @@ class ReportInput:
     rounds : the ranking of every step (:class:`r2s.diagnose.stats.ranking.Round`); kept : the
     effects kept (fits); steps : one summary dict per step; before / predicted / after :
     residuals before, as the last kept fit predicts them, measured after the last kept
-    rerun; structure_final / unexplained : summaries of the final structure test.
+    rerun; structure_final / unexplained : summaries of the final structure test;
+    colour_final : of the final colour test (r2s.diagnose.stats.colour_test).
     """
 
     scene: str
@@ -51,6 +52,7 @@ class ReportInput:
     structure_final: Optional[dict] = None
     unexplained: Optional[dict] = None
     gravity: Optional[dict] = None
+    colour_final: Optional[dict] = None
 
 
 def build_report(r: ReportInput) -> dict[str, Any]:
@@ -80,6 +82,7 @@ def build_report(r: ReportInput) -> dict[str, Any]:
         "structure_before": structure(r.before),
         "structure_after": structure(r.after) if r.after is not None else None,
         "structure_test": r.structure_final,
+        "colour_test": r.colour_final,
         "unexplained": r.unexplained,
         "gravity": r.gravity,
         "gt_errors": None if r.gt_before is None else {"before": r.gt_before,

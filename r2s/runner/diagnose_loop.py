@@ -98,6 +98,7 @@ class LoopResult:
     structure_final: Optional[StructureFinding]
     notes: list
     copy: Optional[Path] = None
+    colour_final: Optional[ColourFinding] = None
 
 
 GT_HEADLINE = ("state_centroid_error_mm", "state_centroid_error_median_mm",
@@ -271,12 +272,12 @@ def run_loop(root: Path, settings: MeasureSettings, cfg: LoopConfig,
         final_structure = test_structure(current.residuals, cfg.structure_alpha)
         unexplained = final_structure if final_structure is not None and \
             final_structure.structured else None
+        colour = test_surface_colour(current.residuals, cfg.colour_z)
         if unexplained is None:  # the table is flat: is the objects' depth error colour's?
-            colour = test_surface_colour(current.residuals, cfg.colour_z)
             unexplained = colour if colour is not None and colour.structured else None
         result = LoopResult(before, current, gt_before, gt_now if kept else None, kept, steps,
                             rounds, stages if kept else [], unexplained, final_structure, notes,
-                            copies.current)
+                            copies.current, colour_final=colour)
     except BaseException:
         copies.cleanup()
         raise

@@ -229,6 +229,7 @@ def run(ctx: StageContext) -> dict:
         stages=tuple(loop.stages), gt_before=loop.gt_before, gt_after=loop.gt_final,
         applied=bool(options.apply and kept), model=new_model, notes=tuple(notes),
         structure_final=loop.structure_final.summary() if loop.structure_final else None,
+        colour_final=loop.colour_final.summary() if loop.colour_final else None,
         unexplained=loop.unexplained.summary() if loop.unexplained else None,
         gravity=camera_or_table(loop.rounds[0] if loop.rounds else None, kept,
                                 options.camera_prior_odds)))
