@@ -35,6 +35,7 @@ the plane frame is :func:`r2s.geometry.plane.world_from_plane`.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -101,21 +102,72 @@ def complete_from_silhouette(mask: np.ndarray, K: np.ndarray, world_from_camera:
         raise ValueError("too few of the mask's rays reach the table")
     ground = eye[:2] + (-lift / rays[down, 2])[:, None] * rays[down, :2]
 
-    # viewing frame on the table: s along the horizontal view, w across it
-    forward = ground.mean(axis=0) - eye[:2]
+    fp = _footprint(ground, eye[:2], lift, cell_m, max_cells)
+    cell = fp.cell
+    slope = -rays[down, 2] / np.linalg.norm(rays[down, :2], axis=1)  # drop per metre
+    top = float(np.clip(np.max(lift - slope * fp.near[np.isfinite(fp.near)].min()), 2 * cell,
+                        max_height_m))
+    xs, ys, column, cap = _columns(fp, eye[:2])
+    zs = base + np.arange(0.5 * cell, top + cell, cell)
+    if not column.any():
+        raise ValueError("the mask gives no footprint on the table")
+
+    grown = ndimage.binary_dilation(m, iterations=mask_grow_px) if mask_grow_px > 0 else m
+    field = _carved_field(xs, ys, zs, column, cap + base, grown, K, wfc, world_from_pl,
+                          view, exclude, cell)
+    # the lowest layer of nodes is half a cell up: with the outside layer mesh_field pads
+    # below it, the base comes out on the plane
+    mesh, centre = mesh_field(field, np.array([xs[0], ys[0], zs[0]]), cell)
+    if color is not None:
+        rgba = np.append(np.asarray(color, dtype=np.uint8)[:3], 255)
+        mesh.visual.vertex_colors = np.tile(rgba, (len(mesh.vertices), 1))
+    plane_from_object = np.eye(4)
+    plane_from_object[:3, 3] = centre
+    return CompletedShape(mesh=mesh, world_from_object=world_from_pl @ plane_from_object,
+                          bottom_m=float(centre[2]))
+
+
+@dataclass(frozen=True)
+class _Footprint:
+    """The guessed footprint in strips of equal bearing from the camera (plane frame).
+
+    forward, across : (2,) unit vectors, the horizontal view and across it; b_lo, b_hi,
+    step : the bearings (across / forward distance) the strips span and the bearing per
+    strip;
+    near, back : (S,) each strip's front and back edge (forward distance, m; inf / -inf
+    for an empty strip); height : (S,) each strip's height (m); cell : the grid cell (m).
+    """
+
+    forward: np.ndarray
+    across: np.ndarray
+    b_lo: float
+    b_hi: float
+    step: float
+    near: np.ndarray
+    back: np.ndarray
+    height: np.ndarray
+    cell: float
+
+
+def _footprint(ground: np.ndarray, eye_xy: np.ndarray, lift: float, cell_m: float,
+               max_cells: int) -> _Footprint:
+    """Steps 1 and 4 of the module docstring from ``ground`` ((N, 2) where the mask's rays
+    meet the support level, plane frame), the camera's position ``eye_xy`` (2,) and height
+    ``lift`` over that level."""
+    forward = ground.mean(axis=0) - eye_xy
     if np.linalg.norm(forward) < 1e-9:
         forward = np.array([1.0, 0.0])  # camera straight above: any direction will do
     forward /= np.linalg.norm(forward)
     across = np.array([-forward[1], forward[0]])
-    s = (ground - eye[:2]) @ forward
+    s = (ground - eye_xy) @ forward
     # strips of equal bearing from the camera (the shadow fans out behind the object; a
     # bearing is the same at the object's front and at the shadow's far end)
-    bearing = ((ground - eye[:2]) @ across) / s
+    bearing = ((ground - eye_xy) @ across) / s
     b_lo, b_hi = np.percentile(bearing, WIDTH_PERCENTILES)
     s_front = float(np.percentile(s, WIDTH_PERCENTILES[0]))
     width = max(float(b_hi - b_lo) * s_front, cell_m)  # across the view at its front
     cell = max(cell_m, max(width, float(s.max() - s.min())) / max_cells)
-    step = cell / s_front  # bearing per strip
+    step = cell / s_front
     n_strips = int(np.ceil((b_hi - b_lo) / step)) + 1
     strips = np.floor((bearing - b_lo) / step).astype(int)
     in_range = (strips >= 0) & (strips < n_strips)
@@ -124,43 +176,55 @@ def complete_from_silhouette(mask: np.ndarray, K: np.ndarray, world_from_camera:
     np.minimum.at(near, strips[in_range], s[in_range])
     np.maximum.at(far, strips[in_range], s[in_range])
     back = np.minimum(near + width, far)  # as deep as wide, within the shadow
-    # the ray that meets the table farthest in a strip grazes the top of the object's back:
-    # the strip's height is that ray's height above the back edge
+    # the ray that meets the support farthest in a strip grazes the top of the object's
+    # back: the strip's height is that ray's height above the back edge
     with np.errstate(invalid="ignore", divide="ignore"):
         height = np.where(far > 0, lift * (far - back) / far, 0.0)
+    return _Footprint(forward, across, float(b_lo), float(b_hi), float(step), near, back,
+                      height, cell)
 
-    # the grid: the footprint's bounding box in the plane frame, up to where rays can reach
-    ok = np.isfinite(near)
-    corners = [eye[:2] + dist * (forward + bear * across)
-               for dist in (near[ok].min(), back[ok].max()) for bear in (b_lo, b_hi + step)]
+
+def _columns(fp: _Footprint, eye_xy: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The grid over the footprint's bounding box (plane frame): node coordinates xs (nx,),
+    ys (ny,), which columns are in the footprint (nx, ny) and each column's height (m)."""
+    cell, ok = fp.cell, np.isfinite(fp.near)
+    corners = [eye_xy + dist * (fp.forward + bear * fp.across)
+               for dist in (fp.near[ok].min(), fp.back[ok].max())
+               for bear in (fp.b_lo, fp.b_hi + fp.step)]
     lo = np.min(corners, axis=0) - cell
     hi = np.max(corners, axis=0) + cell
-    slope = -rays[down, 2] / np.linalg.norm(rays[down, :2], axis=1)  # drop per metre
-    top = float(np.clip(np.max(lift - slope * near[ok].min()), 2 * cell, max_height_m))
     xs = np.arange(lo[0], hi[0] + cell, cell)
     ys = np.arange(lo[1], hi[1] + cell, cell)
-    zs = base + np.arange(0.5 * cell, top + cell, cell)
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
-    rel = np.stack([gx - eye[0], gy - eye[1]], axis=-1)
-    gs = rel @ forward
+    rel = np.stack([gx - eye_xy[0], gy - eye_xy[1]], axis=-1)
+    gs = rel @ fp.forward
     with np.errstate(invalid="ignore", divide="ignore"):
-        strip = np.floor(((rel @ across) / gs - b_lo) / step).astype(int)
-    valid = (gs > 0) & (strip >= 0) & (strip < n_strips)
-    strip = np.clip(strip, 0, n_strips - 1)
-    column = valid & (gs >= near[strip]) & (gs <= back[strip])
-    cap = np.maximum(height[strip], 2 * cell)  # (nx, ny) height of each column
-    if not column.any():
-        raise ValueError("the mask gives no footprint on the table")
+        strip = np.floor(((rel @ fp.across) / gs - fp.b_lo) / fp.step).astype(int)
+    valid = (gs > 0) & (strip >= 0) & (strip < len(fp.near))
+    strip = np.clip(strip, 0, len(fp.near) - 1)
+    column = valid & (gs >= fp.near[strip]) & (gs <= fp.back[strip])
+    return xs, ys, column, np.maximum(fp.height[strip], 2 * cell)
 
+
+def _carved_field(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, column: np.ndarray,
+                  top: np.ndarray, mask: np.ndarray, K: np.ndarray, world_from_camera: np.ndarray,
+                  world_from_pl: np.ndarray, view: CarveView | None,
+                  exclude: Callable[[np.ndarray], np.ndarray] | None, cell: float
+                  ) -> np.ndarray:
+    """Steps 2 and 3 of the module docstring: (nx, ny, nz) field, ``cell`` inside and
+    ``-cell`` outside, of the grid nodes (plane frame ``xs``, ``ys``, ``zs``) in the
+    footprint's ``column``s up to their ``top`` (nx, ny; plane height, m) that project into
+    ``mask`` or behind a nearer object, are not seen free and not excluded; its largest
+    connected piece."""
     ci, cj = np.nonzero(column)
     nodes_pl = np.stack([np.repeat(xs[ci], len(zs)), np.repeat(ys[cj], len(zs)),
                          np.tile(zs, len(ci))], axis=1)
     nodes_w = transform_points(world_from_pl, nodes_pl)
-    below_cap = nodes_pl[:, 2] - base <= np.repeat(cap[ci, cj], len(zs)) + 0.5 * cell
-    grown = ndimage.binary_dilation(m, iterations=mask_grow_px) if mask_grow_px > 0 else m
-    inside = below_cap & _in_mask(grown, nodes_w, K, wfc)
+    below_top = nodes_pl[:, 2] <= np.repeat(top[ci, cj], len(zs)) + 0.5 * cell
+    inside = below_top & _in_mask(mask, nodes_w, K, world_from_camera)
     if view is not None:
-        inside |= below_cap & hidden_by_other(view, nodes_w)
+        inside |= below_top & hidden_by_other(view, nodes_w)
         inside &= ~seen_free(view, nodes_w)
     if exclude is not None and inside.any():
         inside[inside] = ~exclude(nodes_w[inside])
@@ -172,16 +236,7 @@ def complete_from_silhouette(mask: np.ndarray, K: np.ndarray, world_from_camera:
         raise ValueError("nothing of the visual cone is left after carving")
     sizes = np.bincount(labels.ravel())[1:]
     field[(labels != 1 + int(np.argmax(sizes))) & (field > 0)] = -cell
-    # the lowest layer of nodes is half a cell up: with the outside layer mesh_field pads
-    # below it, the base comes out on the plane
-    mesh, centre = mesh_field(field, np.array([xs[0], ys[0], zs[0]]), cell)
-    if color is not None:
-        rgba = np.append(np.asarray(color, dtype=np.uint8)[:3], 255)
-        mesh.visual.vertex_colors = np.tile(rgba, (len(mesh.vertices), 1))
-    plane_from_object = np.eye(4)
-    plane_from_object[:3, 3] = centre
-    return CompletedShape(mesh=mesh, world_from_object=world_from_pl @ plane_from_object,
-                          bottom_m=float(centre[2]))
+    return field
 
 
 BELOW_PX = 4
