@@ -137,3 +137,19 @@ def test_space_a_seen_object_fills_is_left_to_it():
     whole_w.apply_transform(whole.world_from_object)
     assert whole_w.bounds[1, 0] > 0.03 and world.bounds[0, 0] == pytest.approx(
         whole_w.bounds[0, 0], abs=1e-9)
+
+
+def test_seen_from_straight_above_no_height_is_guessed():
+    """From (almost) straight above the silhouette is the glass's top outline: no height
+    can be read from it, so no shape is made (init then leaves the object out, counted
+    missing) instead of a guess several times too tall."""
+    for eye in ([0.0, -0.05, 0.6], [0.0, 0.0, 0.6]):
+        camera = look_at(np.array(eye), np.zeros(3), up=(0.0, 1.0, 0.0))
+        _, depth, masks = render_view([SynthObject(1, GLASS, GLASS_POSE)], K, camera, W, H)
+        mask = masks == 1
+        depth = depth.astype(np.float64)
+        depth[mask] = np.nan
+        view = carve_view(K, camera, depth, np.argwhere(mask), hole_fill_px=0,
+                          plane=(np.zeros(3), UP))
+        with pytest.raises(ValueError, match="straight above"):
+            complete_from_silhouette(mask, K, camera, np.zeros(3), UP, view=view)

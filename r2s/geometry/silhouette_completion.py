@@ -50,6 +50,11 @@ MIN_RAYS = 20
 """Fewer mask rays that reach the table than this: nothing to stand on (``ValueError``)."""
 
 MASK_GROW_PX = 1
+MIN_FRONT_OVER_LIFT = 0.25
+"""The object's front must lie at least this many times the camera's height away
+(horizontally), i.e. be seen less than about 76 deg below the horizon: from nearly straight
+above a silhouette shows the object's top outline only, and the guess of its height from
+the rays over its back fails (a 100 mm glass came out 177-321 mm tall)."""
 WIDTH_PERCENTILES = (2.0, 98.0)
 """The object's width across the view: this range of its rays' bearings, at the distance
 of its front (a few stray mask pixels do not widen it)."""
@@ -165,6 +170,9 @@ def _footprint(ground: np.ndarray, eye_xy: np.ndarray, lift: float, cell_m: floa
     bearing = ((ground - eye_xy) @ across) / s
     b_lo, b_hi = np.percentile(bearing, WIDTH_PERCENTILES)
     s_front = float(np.percentile(s, WIDTH_PERCENTILES[0]))
+    if s_front < MIN_FRONT_OVER_LIFT * lift:
+        raise ValueError("seen from nearly straight above, its height cannot be told from "
+                         "its silhouette")
     width = max(float(b_hi - b_lo) * s_front, cell_m)  # across the view at its front
     cell = max(cell_m, max(width, float(s.max() - s.min())) / max_cells)
     step = cell / s_front
