@@ -11,7 +11,9 @@ from __future__ import annotations
 import base64
 import io
 import json
+import os
 import shutil
+import signal
 import subprocess
 import tempfile
 import time
@@ -96,11 +98,14 @@ def screenshot(url: str, out_png: Path, width_px: int = 1024, height_px: int = 7
     exe = chromium or find_chromium()
     if exe is None:
         raise R2SError("no Chromium found (install Debian's 'chromium' package)")
-    with tempfile.TemporaryDirectory(prefix="r2s-chromium-") as profile:
+    # Chromium's helper processes can outlive the main one by a moment and still write into
+    # the profile: the browser gets its own process group, killed whole, and a profile
+    # file left behind does not fail the capture
+    with tempfile.TemporaryDirectory(prefix="r2s-chromium-", ignore_cleanup_errors=True) as profile:
         proc = subprocess.Popen(
             [exe, *CHROMIUM_FLAGS, f"--window-size={width_px},{height_px}",
              "--remote-debugging-port=0", f"--user-data-dir={profile}", "about:blank"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         try:
             port = _devtools_port(Path(profile), proc, 60.0)
             with urllib.request.urlopen(f"http://127.0.0.1:{port}/json", timeout=30) as resp:
@@ -114,15 +119,32 @@ def screenshot(url: str, out_png: Path, width_px: int = 1024, height_px: int = 7
             finally:
                 tools.close()
         finally:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+            _stop_group(proc)
     out_png = Path(out_png)
     out_png.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(image).save(out_png)
     return image
+
+
+def _stop_group(proc: subprocess.Popen) -> None:
+    """Stop the process group ``proc`` leads: SIGTERM, up to 10 s for the browser to exit,
+    then SIGKILL to whatever of the group is left (helpers included)."""
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+    except (ProcessLookupError, PermissionError):
+        pass
+    try:
+        proc.wait(timeout=10.0)
+    except subprocess.TimeoutExpired:
+        pass
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
+    try:
+        proc.wait(timeout=5.0)
+    except subprocess.TimeoutExpired:
+        pass
 
 
 def _capture_when_settled(tools: _DevTools, timeout_s: float, poll_s: float,
