@@ -129,22 +129,15 @@ def screenshot(url: str, out_png: Path, width_px: int = 1024, height_px: int = 7
 def _stop_group(proc: subprocess.Popen) -> None:
     """Stop the process group ``proc`` leads: SIGTERM, up to 10 s for the browser to exit,
     then SIGKILL to whatever of the group is left (helpers included)."""
-    try:
-        os.killpg(proc.pid, signal.SIGTERM)
-    except (ProcessLookupError, PermissionError):
-        pass
-    try:
-        proc.wait(timeout=10.0)
-    except subprocess.TimeoutExpired:
-        pass
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except (ProcessLookupError, PermissionError):
-        pass
-    try:
-        proc.wait(timeout=5.0)
-    except subprocess.TimeoutExpired:
-        pass
+    for sig, wait_s in ((signal.SIGTERM, 10.0), (signal.SIGKILL, 5.0)):
+        try:
+            os.killpg(proc.pid, sig)
+        except (ProcessLookupError, PermissionError):
+            pass
+        try:
+            proc.wait(timeout=wait_s)
+        except subprocess.TimeoutExpired:
+            pass
 
 
 def _capture_when_settled(tools: _DevTools, timeout_s: float, poll_s: float,
