@@ -82,6 +82,25 @@ def project(points_world: np.ndarray, K: np.ndarray, world_from_camera: np.ndarr
     return uv, z
 
 
+def image_pixels(points_world: np.ndarray, K: np.ndarray, world_from_camera: np.ndarray,
+                 height: int, width: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pixel each world point lands on in an image of ``height`` x ``width`` pixels.
+
+    Returns
+    -------
+    ok : (N,) bool, in front of the camera and inside the image.
+    row, col : (N,) int64 the nearest pixel (0 where not ``ok``).
+    uv : (N, 2) and z_m : (N,) as :func:`project` gives them.
+    """
+    uv, z = project(points_world, K, world_from_camera)
+    ok = np.all(np.isfinite(uv), axis=1) & (z > 0)
+    col = np.rint(np.where(ok, uv[:, 0], -1)).astype(np.int64)
+    row = np.rint(np.where(ok, uv[:, 1], -1)).astype(np.int64)
+    ok &= (row >= 0) & (row < height) & (col >= 0) & (col < width)
+    return ok, np.where(ok, row, 0), np.where(ok, col, 0), uv, z
+
+
 def pixel_rays(K: np.ndarray, world_from_camera: np.ndarray, width: int, height: int
                ) -> tuple[np.ndarray, np.ndarray]:
     """World ray of every pixel centre, for ray casting a synthetic view.

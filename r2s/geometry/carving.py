@@ -35,7 +35,7 @@ from typing import Optional
 import numpy as np
 from scipy import ndimage
 
-from r2s.geometry.camera import project
+from r2s.geometry.camera import image_pixels
 
 CARVE_MARGIN_M = 0.003
 CARVE_MARGIN_QUADRATIC_M = 0.006
@@ -139,13 +139,8 @@ def _lookup(view: CarveView, points_world: np.ndarray
     """(in_image (N,) bool, row, col (N,) int (0 outside), z (N,) camera depth, d (N,)
     the reading at the pixel) of world points (N, 3)."""
     pts = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
-    uv, z = project(pts, view.K, view.world_from_camera)
-    height, width = view.depth_m.shape
-    ok = np.all(np.isfinite(uv), axis=1) & (z > 0)
-    col = np.rint(np.where(ok, uv[:, 0], -1)).astype(np.int64)
-    row = np.rint(np.where(ok, uv[:, 1], -1)).astype(np.int64)
-    ok &= (row >= 0) & (row < height) & (col >= 0) & (col < width)
-    row, col = np.where(ok, row, 0), np.where(ok, col, 0)
+    ok, row, col, _, z = image_pixels(pts, view.K, view.world_from_camera,
+                                      *view.depth_m.shape)
     return ok, row, col, z, view.depth_m[row, col]
 
 

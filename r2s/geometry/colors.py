@@ -11,7 +11,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from r2s.geometry.camera import project
+from r2s.geometry.camera import image_pixels
 
 
 def has_appearance(mesh: trimesh.Trimesh) -> bool:
@@ -43,13 +43,7 @@ def visible_vertex_colors(vertices_world: np.ndarray, rgb: np.ndarray, depth_m: 
     colors : (V, 3) uint8 (zeros where not seen).
     seen : (V,) bool.
     """
-    height, width = depth_m.shape
-    uv, z = project(vertices_world, K, world_from_camera)
-    ok = np.all(np.isfinite(uv), axis=1) & (z > 0)
-    col = np.rint(np.where(ok, uv[:, 0], -1)).astype(np.int64)
-    row = np.rint(np.where(ok, uv[:, 1], -1)).astype(np.int64)
-    ok &= (row >= 0) & (row < height) & (col >= 0) & (col < width)
-    r, c = np.clip(row, 0, height - 1), np.clip(col, 0, width - 1)
+    ok, r, c, _, z = image_pixels(vertices_world, K, world_from_camera, *depth_m.shape)
     d = depth_m[r, c]
     seen = ok & np.isfinite(d) & (np.abs(d - z) < depth_tolerance_m)
     if own_mask is not None:

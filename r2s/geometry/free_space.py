@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from r2s.geometry.camera import project, transform_points
+from r2s.geometry.camera import image_pixels, transform_points
 
 
 @dataclass(frozen=True)
@@ -100,12 +100,9 @@ def free_space_violations(view: ViewConstraint, points_world: np.ndarray,
     xw = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
     cam = view.world_from_camera[:3, 3]
     facing = np.einsum("nj,nj->n", np.asarray(normals_world, dtype=np.float64), cam - xw) > 0
-    uv, z = project(xw, view.K, view.world_from_camera)
     height, width = view.image_size
-    ok = facing & np.all(np.isfinite(uv), axis=1) & (z > 0)
-    col = np.rint(np.where(ok, uv[:, 0], -1)).astype(np.int64)
-    row = np.rint(np.where(ok, uv[:, 1], -1)).astype(np.int64)
-    ok &= (row >= 0) & (row < height) & (col >= 0) & (col < width)
+    ok, row, col, uv, z = image_pixels(xw, view.K, view.world_from_camera, height, width)
+    ok &= facing
     r0, r1, c0, c1 = view.window
     rr = np.clip(row - r0, 0, r1 - r0 - 1)
     cc = np.clip(col - c0, 0, c1 - c0 - 1)

@@ -41,7 +41,7 @@ from typing import Callable
 import numpy as np
 from scipy import ndimage
 
-from r2s.geometry.camera import backproject, project, transform_points
+from r2s.geometry.camera import backproject, image_pixels, project, transform_points
 from r2s.geometry.carving import CarveView, hidden_by_other, seen_free
 from r2s.geometry.completion import CompletedShape, mesh_field
 from r2s.geometry.plane import world_from_plane
@@ -118,7 +118,7 @@ def complete_from_silhouette(mask: np.ndarray, K: np.ndarray, world_from_camera:
         raise ValueError("the mask gives no footprint on the table")
 
     grown = ndimage.binary_dilation(m, iterations=mask_grow_px) if mask_grow_px > 0 else m
-    field = _carved_field(xs, ys, zs, column, cap + base, grown, K, wfc, world_from_pl,
+    field = _carved_field(xs, ys, zs, column, cap, base, grown, K, wfc, world_from_pl,
                           view, exclude, cell)
     # the lowest layer of nodes is half a cell up: with the outside layer mesh_field pads
     # below it, the base comes out on the plane
@@ -216,20 +216,21 @@ def _columns(fp: _Footprint, eye_xy: np.ndarray
 
 
 def _carved_field(xs: np.ndarray, ys: np.ndarray, zs: np.ndarray, column: np.ndarray,
-                  top: np.ndarray, mask: np.ndarray, K: np.ndarray, world_from_camera: np.ndarray,
-                  world_from_pl: np.ndarray, view: CarveView | None,
+                  cap: np.ndarray, base: float, mask: np.ndarray, K: np.ndarray,
+                  world_from_camera: np.ndarray, world_from_pl: np.ndarray,
+                  view: CarveView | None,
                   exclude: Callable[[np.ndarray], np.ndarray] | None, cell: float
                   ) -> np.ndarray:
     """Steps 2 and 3 of the module docstring: (nx, ny, nz) field, ``cell`` inside and
     ``-cell`` outside, of the grid nodes (plane frame ``xs``, ``ys``, ``zs``) in the
-    footprint's ``column``s up to their ``top`` (nx, ny; plane height, m) that project into
-    ``mask`` or behind a nearer object, are not seen free and not excluded; its largest
-    connected piece."""
+    footprint's ``column``s up to their ``cap`` (nx, ny; height over ``base``, the support
+    level, m) that project into ``mask`` or behind a nearer object, are not seen free and
+    not excluded; its largest connected piece."""
     ci, cj = np.nonzero(column)
     nodes_pl = np.stack([np.repeat(xs[ci], len(zs)), np.repeat(ys[cj], len(zs)),
                          np.tile(zs, len(ci))], axis=1)
     nodes_w = transform_points(world_from_pl, nodes_pl)
-    below_top = nodes_pl[:, 2] <= np.repeat(top[ci, cj], len(zs)) + 0.5 * cell
+    below_top = nodes_pl[:, 2] - base <= np.repeat(cap[ci, cj], len(zs)) + 0.5 * cell
     inside = below_top & _in_mask(mask, nodes_w, K, world_from_camera)
     if view is not None:
         inside |= below_top & hidden_by_other(view, nodes_w)
@@ -288,12 +289,5 @@ def _base_height(mask: np.ndarray, view: CarveView, K: np.ndarray, world_from_ca
 def _in_mask(mask: np.ndarray, points_world: np.ndarray, K: np.ndarray,
              world_from_camera: np.ndarray) -> np.ndarray:
     """(N,) bool: world points (N, 3) in front of the camera that project into ``mask``."""
-    uv, z = project(points_world, K, world_from_camera)
-    height, width = mask.shape
-    ok = np.all(np.isfinite(uv), axis=1) & (z > 0)
-    col = np.rint(np.where(ok, uv[:, 0], -1)).astype(np.int64)
-    row = np.rint(np.where(ok, uv[:, 1], -1)).astype(np.int64)
-    ok &= (row >= 0) & (row < height) & (col >= 0) & (col < width)
-    out = np.zeros(len(ok), dtype=bool)
-    out[ok] = mask[row[ok], col[ok]]
-    return out
+    ok, row, col, _, _ = image_pixels(points_world, K, world_from_camera, *mask.shape)
+    return ok & mask[row, col]
