@@ -26,7 +26,7 @@ import numpy as np
 from r2s.diagnose.effects import all_effects
 from r2s.diagnose.stats.camera_or_table import camera_or_table
 from r2s.diagnose.plots import colour_figure, residual_figure, structure_figure
-from r2s.diagnose.stats.colour_test import ColourFinding
+from r2s.diagnose.stats.colour_test import Z_THRESHOLD as COLOUR_Z, ColourFinding
 from r2s.diagnose.stats.ranking import NoiseBar
 from r2s.diagnose.report import ReportInput, build_report, markdown
 from r2s.diagnose.measure.scene_dir import MeasureSettings
@@ -66,7 +66,7 @@ class Options(StageOptions):
                                               "explains in this share of the draws.")
     structure_alpha: float = Field(1e-3, gt=0, lt=1, description="Level of the test for "
                                                                  "structure in the residual.")
-    colour_z: float = Field(6.0, gt=0, description="A depth error that depends on the "
+    colour_z: float = Field(COLOUR_Z, gt=0, description="A depth error that depends on the "
                                                    "surface's grey level is reported when the "
                                                    "registered priors' residual gives |z| at "
                                                    "least this (diagnose/stats/colour_test.py; "

@@ -548,6 +548,27 @@ def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple
         shapes[spec.id] = (mesh, world_from_object, None)
 
 
+def _with_silhouettes(scene: InputScene, plane: PlaneFit, o: Options, out: Path,
+                      objects: list[ObjectState], posed: list[trimesh.Trimesh], flags: list[str]
+                      ) -> tuple[list[ObjectState], list[trimesh.Trimesh]]:
+    """``objects`` and their world-frame meshes ``posed`` with an object built from its
+    silhouette for each of ``scene.skipped_objects`` that gives one (the measured objects
+    own their inside), sorted by id; a warning line for each in ``flags``."""
+    seen = [Claimant(mesh_w, np.zeros((0, 3)), is_prior=True) for mesh_w in posed]
+    objects, posed = list(objects), list(posed)
+    for spec in scene.skipped_objects:
+        built = _from_silhouette(scene, spec, plane, o, out, seen)
+        if isinstance(built, str):
+            flags.append(built)
+            continue
+        objects.append(built[0])
+        posed.append(built[1])
+        flags.append(f"object {spec.id}: its mask read no depth; its shape is a guess from "
+                     "its silhouette standing on the table (source 'silhouette')")
+    order = np.argsort([ob.id for ob in objects], kind="stable")
+    return [objects[k] for k in order], [posed[k] for k in order]
+
+
 def _from_silhouette(scene: InputScene, spec: ObjectSpec, plane: PlaneFit, o: Options,
                      out: Path, seen: Sequence[Claimant]
                      ) -> tuple[ObjectState, trimesh.Trimesh] | str:
@@ -667,18 +688,8 @@ def run(ctx: StageContext) -> dict:
         if state.source == "prior":
             rmses.append(rmse)
 
-    seen = [Claimant(mesh_w, np.zeros((0, 3)), is_prior=True) for mesh_w in posed]
-    for spec in scene.skipped_objects:
-        built = _from_silhouette(scene, spec, plane, o, out, seen)
-        if isinstance(built, str):
-            flags.append(built)
-            continue
-        objects.append(built[0])
-        posed.append(built[1])
-        flags.append(f"object {spec.id}: its mask read no depth; its shape is a guess from "
-                     "its silhouette standing on the table (source 'silhouette')")
-    order = np.argsort([ob.id for ob in objects], kind="stable")
-    objects, posed = [objects[k] for k in order], [posed[k] for k in order]
+    if scene.skipped_objects:
+        objects, posed = _with_silhouettes(scene, plane, o, out, objects, posed, flags)
 
     ctx.progress("overlay", 0.95)
     rendered = render_instances(posed, cam.K, cam.world_from_camera, cam.width, cam.height)

@@ -161,11 +161,19 @@ def table_shape_residual(inp: InputScene, sigma_m: float, max_points: int = 2000
     x = (cols - K[0, 2] - K[0, 1] * (rows - K[1, 2]) / K[1, 1]) / K[0, 0]
     y = (rows - K[1, 2]) / K[1, 1]
     pts = np.stack([x * z, y * z, z], axis=1)
-    grey = None
-    if inp.rgb is not None and np.asarray(inp.rgb).ndim == 3:
-        grey = np.asarray(inp.rgb, dtype=np.float64)[rows, cols].mean(axis=1) / 255.0
+    grey = grey_image(inp)
+    if grey is not None:
+        grey = grey[rows, cols]
     return TableShapeData(points_camera=pts, K=K, width=int(inp.camera.width),
                           height=int(inp.camera.height), grey=grey, sigma_m=sigma_m)
+
+
+def grey_image(inp: InputScene) -> Optional[np.ndarray]:
+    """(H, W) grey level 0..1 of the input image (the mean of its channels), or None
+    without a colour image."""
+    if inp.rgb is None or np.asarray(inp.rgb).ndim != 3:
+        return None
+    return np.asarray(inp.rgb, dtype=np.float64).mean(axis=2) / 255.0
 
 
 def depth_residual_map(inp: InputScene, objects: list[ObjectModel],
@@ -187,11 +195,9 @@ def depth_residual_map(inp: InputScene, objects: list[ObjectModel],
                                    cam.width, cam.height)
         table = (inp.masks == 0) & np.isfinite(plane_depth)
         residual[table] = obs[table] - plane_depth[table]
-    grey = None
-    if inp.rgb is not None and np.asarray(inp.rgb).ndim == 3:
-        grey = np.asarray(inp.rgb, dtype=np.float64).mean(axis=2) / 255.0
     return DepthMapData(residual_m=residual, depth_m=obs, on_object=inp.masks > 0,
-                        object_id=np.where(on_obj, inp.masks, 0).astype(np.int64), grey=grey,
+                        object_id=np.where(on_obj, inp.masks, 0).astype(np.int64),
+                        grey=grey_image(inp),
                         prior_ids=tuple(o.id for o in objects if o.prior_area_m2 is not None),
                         view_cosine=_view_cosine(meshes, index, triangle, cam.K,
                                                  cam.world_from_camera))
