@@ -3,7 +3,7 @@
 
 import numpy as np
 
-from r2s.geometry.point_cleanup import interior_pixels, mask_parts, object_point_mask
+from r2s.geometry.point_cleanup import interior_pixels, mask_parts, object_point_mask, part_labels
 
 
 def _square(r0, c0, size):
@@ -58,3 +58,35 @@ def test_a_speck_apart_from_the_mask_is_judged_against_the_whole_mask():
     points = np.column_stack([pixels * 1e-3, np.full(len(pixels), 0.02)])
     keep = object_point_mask(points, pixels, depth, np.zeros(3), np.array([0.0, 0.0, 1.0]))
     assert keep[:len(main)].all() and not keep[len(main):].any()
+
+
+def test_a_thin_part_with_few_readings_is_sized_by_its_mask_pixels():
+    # a screwdriver's shaft past an occluder: a 6 x 40 px strip of the mask (240 px) that
+    # reads depth only in 10 patches of 4 x 2 px (80 readings, each patch its own surface
+    # region across the holes). Counted by its readings it is a speck (< MIN_PART_PX) and
+    # judged against the 40 x 40 px main part's region, so dropped; counted by its mask
+    # pixels it is a part of its own, judged against its own regions, so kept.
+    main = _square(100, 100, 40)
+    strip = _square(100, 160, 40)
+    strip = strip[strip[:, 0] < 106]                     # rows 100..105: 240 px
+    read = strip[(strip[:, 0] >= 101) & (strip[:, 0] <= 104) & (strip[:, 1] % 4 < 2)]
+    assert len(read) == 80
+    pixels = np.vstack([main, read])
+    depth = np.full(len(pixels), 0.6)
+    points = np.column_stack([pixels * 1e-3, np.full(len(pixels), 0.05)])
+    plane = (np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    by_readings = object_point_mask(points, pixels, depth, *plane)
+    assert by_readings[:len(main)].all() and not by_readings[len(main):].any()
+    by_mask = object_point_mask(points, pixels, depth, *plane,
+                                mask_pixels=np.vstack([main, strip]))
+    assert by_mask.all()
+
+
+def test_part_labels_count_mask_pixels_and_stray_pixels():
+    mask = np.vstack([_square(0, 0, 10), _square(0, 30, 4)])    # parts of 100 and 16 px
+    readings = np.vstack([_square(0, 0, 10)[::10], _square(0, 30, 4)[:3], [[50, 50]]])
+    part, size = part_labels(readings, mask)
+    assert list(size[part[[0, 10, 13]]]) == [100, 16, 1]        # the stray pixel: its own
+    assert len(set(part[:10])) == 1 and len(set(part)) == 3
+    part, size = part_labels(readings, None)                     # its own parts: 10, 3, 1
+    assert sorted(size) == [1, 3, 10]

@@ -87,17 +87,90 @@ EXTEND_FRACTION = 0.0
 EXTEND_MAX_M = 0.05
 
 
-def footprint_sdf(hull_equations: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Signed distance-like field of a convex polygon, negative inside.
+def footprint_sdf(hull_equations: np.ndarray | Sequence[np.ndarray], xy: np.ndarray
+                  ) -> np.ndarray:
+    """Signed distance-like field of a convex polygon, or a union of them, negative inside.
 
     ``max_k (n_k . xy + c_k)`` over the hull's edge lines (unit outward normals); exact on
-    the boundary and inside, a lower bound of the distance outside.
+    the boundary and inside, a lower bound of the distance outside. For a union, the
+    minimum over its polygons.
 
-    hull_equations : (K, 3) ``[nx, ny, c]`` rows of ``scipy.spatial.ConvexHull.equations``.
+    hull_equations : (K, 3) ``[nx, ny, c]`` rows of ``scipy.spatial.ConvexHull.equations``,
+        or a list of such arrays (a union of polygons).
     xy : (..., 2). Returns (...,).
     """
+    if isinstance(hull_equations, (list, tuple)):
+        return np.min([footprint_sdf(eq, xy) for eq in hull_equations], axis=0)
     eq = np.asarray(hull_equations, dtype=np.float64)
     return np.max(xy @ eq[:, :2].T + eq[:, 2], axis=-1)
+
+
+MIN_PART_POINTS = 10
+"""A part of the mask with fewer points has no footprint of its own: its points join the
+hull of the nearest part."""
+
+
+def part_hulls(xy_points: np.ndarray, parts: np.ndarray) -> list[np.ndarray] | None:
+    """The hull equations (:func:`footprint_sdf`) of each part's points: ``xy_points``
+    (N, 2, plane frame), ``parts`` (N,) int. None when fewer than two parts have
+    :data:`MIN_PART_POINTS` points or a part's points lie on a line; a smaller part's
+    points join the part whose points lie nearest to them.
+
+    An object seen on both sides of an occluder (a drill's body and a sliver of it past a
+    toy plane) then need not fill the space between with one hull across the occluder
+    and whatever stands there (:func:`_footprint` chooses)."""
+    labels, counts = np.unique(parts, return_counts=True)
+    big = labels[counts >= MIN_PART_POINTS]
+    if len(big) < 2:
+        return None
+    owner = np.asarray(parts).copy()
+    small = ~np.isin(owner, big)
+    if small.any():
+        big_pts = np.isin(owner, big)
+        _, nn = cKDTree(xy_points[big_pts]).query(xy_points[small])
+        owner[small] = owner[big_pts][nn]
+    try:
+        return [ConvexHull(xy_points[owner == label]).equations for label in big]
+    except QhullError:
+        return None
+
+
+INSIDE_MARGIN_M = 0.005
+"""Another object's point this far or more below an object's top height is inside its
+column (:func:`_footprint`)."""
+INSIDE_MIN_POINTS = 3
+"""...and a grid cell holding at least this many such points is the other object's."""
+
+
+def _footprint(pts: np.ndarray, parts: np.ndarray | None, hull: ConvexHull, gx: np.ndarray,
+               gy: np.ndarray, top: np.ndarray, others: np.ndarray | list[np.ndarray] | None,
+               cell: float) -> np.ndarray | list[np.ndarray]:
+    """The footprint (hull equations for :func:`footprint_sdf`) of an object's points
+    ``pts`` (N, 3, plane frame) on the grid ``gx, gy``: the hull of them all, or the union
+    of its parts' own hulls (:func:`part_hulls`) when another object is seen inside the
+    columns the hull fills between the parts.
+
+    The hull across the parts of a mask cut apart by an occluder is right for a plate seen
+    past the fruit on it (the fruit is seen above the plate's top) and for a tool lying
+    behind a toy. It is wrong where the occluder is seen below the top the object would
+    have there (a strawberry on the table in front of a drill, between the drill's body and
+    a sliver of it): the object goes around or behind it in a way one view does not show,
+    so only the parts seen are kept. "Seen inside": a grid cell between the parts holds
+    :data:`INSIDE_MIN_POINTS` of ``others``' points (plane frame, (M, 3) or a list of such)
+    lower than ``top`` ((nx, ny) top heights) by :data:`INSIDE_MARGIN_M`."""
+    hulls = None if parts is None or others is None else part_hulls(pts[:, :2], parts)
+    other = np.concatenate(others) if isinstance(others, list) else others
+    if hulls is None or len(other) == 0:
+        return hull.equations
+    xy = np.stack([gx, gy], axis=-1)
+    between = (footprint_sdf(hull.equations, xy) <= 0) & (footprint_sdf(hulls, xy) > 0)
+    ix = np.floor((other[:, 0] - gx[0, 0]) / cell + 0.5).astype(int)
+    iy = np.floor((other[:, 1] - gy[0, 0]) / cell + 0.5).astype(int)
+    ok = (ix >= 0) & (iy >= 0) & (ix < gx.shape[0]) & (iy < gx.shape[1])
+    ok[ok] = other[ok, 2] < top[ix[ok], iy[ok]] - INSIDE_MARGIN_M
+    count = np.zeros(gx.shape, dtype=int)
+    np.add.at(count, (ix[ok], iy[ok]), 1)
+    return hulls if np.any(between & (count >= INSIDE_MIN_POINTS)) else hull.equations
 
 
 def _columns(pts: np.ndarray, x0: float, y0: float, nx: int, ny: int, cell_m: float
@@ -137,7 +210,7 @@ def _fill(values: np.ndarray, known: np.ndarray, xs: np.ndarray, ys: np.ndarray)
     return out
 
 
-def _beside(group: np.ndarray, hull_eq: np.ndarray, z_low: float, margin_m: float,
+def _beside(group: np.ndarray, hull_eq: np.ndarray | list[np.ndarray], z_low: float, margin_m: float,
             beside_share: float, beside_m: float, min_points: int) -> bool:
     """True when one other object's points (plane frame) within ``margin_m`` of the
     footprint rise past the object's lowest observed point ``z_low`` (by ``beside_m``, more
@@ -148,7 +221,8 @@ def _beside(group: np.ndarray, hull_eq: np.ndarray, z_low: float, margin_m: floa
 
 
 def _support_height(pts: np.ndarray, below: np.ndarray | list[np.ndarray] | None,
-                    hull_eq: np.ndarray, margin_m: float, min_points: int = 30,
+                    hull_eq: np.ndarray | list[np.ndarray], margin_m: float,
+                    min_points: int = 30,
                     envelope_percentile: float = 95.0, beside_share: float = 0.2,
                     beside_m: float = 0.003) -> tuple[float, np.ndarray | None]:
     """Height of what the object stands on, as a plane ``z = a x + b y + c`` or 0.
@@ -282,8 +356,8 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
                          extend_fraction: float = EXTEND_FRACTION,
                          extend_max_m: float = EXTEND_MAX_M,
                          exclude: Callable[[np.ndarray], np.ndarray] | None = None,
-                         under_meshes_world: Sequence[trimesh.Trimesh] = ()
-                         ) -> CompletedShape:
+                         under_meshes_world: Sequence[trimesh.Trimesh] = (),
+                         point_parts: np.ndarray | None = None) -> CompletedShape:
     """Complete a watertight mesh from one partial view of an object on a plane.
 
     Parameters
@@ -311,6 +385,10 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
         one's top surface lies below this object's top (by more than two cells), this
         object's base is raised onto it: what lies across other objects rests on them
         instead of reaching down to the table between and through them.
+    point_parts : (N,) int, the part of the mask each point was seen in (the mask cut in
+        parts by an occluder, :func:`r2s.geometry.point_cleanup.part_labels`), or None.
+        With two parts or more the footprint may be the union of the parts' own hulls
+        instead of one hull across the occluder between them (:func:`_footprint`).
 
     Returns
     -------
@@ -321,6 +399,7 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
     if outlier_factor > 0 and keep.sum() > 20:
         keep[keep] = drop_isolated(pts_w[keep], factor=outlier_factor)
     pts_w = pts_w[keep]
+    parts = None if point_parts is None else np.asarray(point_parts).reshape(-1)[keep]
     if len(pts_w) < 10:
         raise ValueError("completion needs at least 10 observed points")
     world_from_pl = world_from_plane(plane_point, plane_normal)
@@ -345,7 +424,12 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
     xs = x0 + cell * np.arange(nx)
     ys = y0 + cell * np.arange(ny)
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
-    sdf = footprint_sdf(hull.equations, np.stack([gx, gy], axis=-1)) - hull_margin_m
+    below = None
+    if isinstance(below_points_world, (list, tuple)):
+        below = [transform_points(plane_from_world, np.asarray(g, dtype=np.float64).reshape(-1, 3))
+                 for g in below_points_world]
+    elif below_points_world is not None and len(below_points_world):
+        below = transform_points(plane_from_world, below_points_world)
 
     top = _top_height_map(pts, x0, y0, nx, ny, cell)
     known = np.isfinite(top)
@@ -357,14 +441,10 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
                                          mode="constant", cval=np.nan)
         top = np.where(known, np.minimum(top, med + 2 * cell), top)
     top = _fill(top, known, xs, ys)
+    footprint = _footprint(pts, parts, hull, gx, gy, top, below, cell)
+    sdf = footprint_sdf(footprint, np.stack([gx, gy], axis=-1)) - hull_margin_m
 
-    below = None
-    if isinstance(below_points_world, (list, tuple)):
-        below = [transform_points(plane_from_world, np.asarray(g, dtype=np.float64).reshape(-1, 3))
-                 for g in below_points_world]
-    elif below_points_world is not None and len(below_points_world):
-        below = transform_points(plane_from_world, below_points_world)
-    _, coef = _support_height(pts, below, hull.equations, margin_m=0.01)
+    _, coef = _support_height(pts, below, footprint, margin_m=0.01)
     if coef is None:
         bottom = np.zeros_like(top)
     else:

@@ -122,13 +122,45 @@ def surface_regions(pixels: np.ndarray, depth_m: np.ndarray, jump_min_m: float =
     return labels.astype(np.int64)
 
 
+def part_labels(pixels: np.ndarray, mask_pixels: np.ndarray | None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) part label (0..P-1) of each of the (N, 2) ``pixels`` (:func:`mask_parts`) and
+    (P,) each part's size in pixels.
+
+    With ``mask_pixels`` ((M, 2), the whole instance mask, pixels without a depth reading
+    too) the parts are the mask's and their sizes count every mask pixel: a thin part seen
+    past an occluder reads depth in few of its pixels and is no speck for that (pixels
+    outside the mask make parts of their own, sized by their count). Without it, the parts
+    of ``pixels`` themselves."""
+    pix = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
+    if mask_pixels is None or len(mask_pixels) == 0 or len(pix) == 0:
+        part = mask_parts(pix)
+        return part, np.bincount(part)
+    whole = np.asarray(mask_pixels, dtype=np.int64).reshape(-1, 2)
+    whole_part = mask_parts(whole)
+    r0, c0 = whole.min(axis=0)
+    shape = tuple(whole.max(axis=0) - (r0, c0) + 1)
+    lookup = np.full(shape, -1, dtype=np.int64)
+    lookup[whole[:, 0] - r0, whole[:, 1] - c0] = whole_part
+    rr, cc = pix[:, 0] - r0, pix[:, 1] - c0
+    inside = (rr >= 0) & (cc >= 0) & (rr < shape[0]) & (cc < shape[1])
+    part = np.full(len(pix), -1, dtype=np.int64)
+    part[inside] = lookup[rr[inside], cc[inside]]
+    stray = part < 0
+    if stray.any():
+        part[stray] = whole_part.max() + 1 + mask_parts(pix[stray])
+    sizes = np.bincount(np.concatenate([whole_part, part[stray]]))
+    used, part = np.unique(part, return_inverse=True)
+    return part.astype(np.int64), sizes[used]
+
+
 def object_point_mask(points_world: np.ndarray, pixels: np.ndarray, depth_m: np.ndarray,
                       plane_point: np.ndarray, plane_normal: np.ndarray,
                       plane_band_m: float = PLANE_BAND_M,
                       min_region_fraction: float = MIN_REGION_FRACTION,
                       min_keep_fraction: float = MIN_KEEP_FRACTION,
-                      edge_px: int = EDGE_PX, neighbour_pixels: np.ndarray | None = None
-                      ) -> np.ndarray:
+                      edge_px: int = EDGE_PX, neighbour_pixels: np.ndarray | None = None,
+                      mask_pixels: np.ndarray | None = None) -> np.ndarray:
     """(N,) bool: which of an instance's observed points belong to the object.
 
     points_world : (N, 3) back-projected mask pixels; pixels : (N, 2) their (row, col);
@@ -153,10 +185,10 @@ def object_point_mask(points_world: np.ndarray, pixels: np.ndarray, depth_m: np.
     sizes = np.bincount(labels)
     # compared within each part of the mask: a part cut off by an occluder is the object
     # seen past it, not bleed (bleed grows into a mask from its outline)
-    part = mask_parts(np.asarray(pixels)[idx])
+    part, part_px = part_labels(np.asarray(pixels)[idx], mask_pixels)
     largest = np.zeros(part.max() + 1, dtype=np.int64)
     np.maximum.at(largest, part, sizes[labels])
-    small_part = np.bincount(part) < MIN_PART_PX  # specks are judged against the whole mask
+    small_part = part_px < MIN_PART_PX  # specks are judged against the whole mask
     largest[small_part] = sizes.max()
     region_keep = sizes[labels] >= min_region_fraction * largest[part]
     if np.count_nonzero(region_keep) >= floor:

@@ -56,7 +56,7 @@ from r2s.geometry.hidden_partition import Claimant, exclusion, overlaps
 from r2s.geometry.free_space import view_constraint
 from r2s.geometry.mask_edges import foreign_rim_pixels
 from r2s.geometry.mask_holes import fill_mask_holes
-from r2s.geometry.point_cleanup import object_point_mask
+from r2s.geometry.point_cleanup import object_point_mask, part_labels
 from r2s.geometry.silhouette_completion import complete_from_silhouette
 from r2s.geometry.overlay import fit_overlay, render_instances
 from r2s.geometry.prior_choice import (ChoiceMargins, Rest, choose, score_in_view,
@@ -177,6 +177,16 @@ class Options(StageOptions):
         True, description="Before completing, drop mask points on the support plane and "
                           "regions of the mask across a depth jump from the object's main "
                           "surface (bleed; see geometry/point_cleanup.py).")
+    completion_parts_by_mask: bool = Field(
+        True, description="In the point cleanup, size the parts of a mask cut apart by an "
+                          "occluder by their mask pixels, not their depth readings, so a "
+                          "thin part that reads depth in few pixels is not dropped as a "
+                          "speck (see geometry/point_cleanup.py).")
+    completion_footprint_by_part: bool = Field(
+        True, description="A completed object seen in parts of its mask cut apart by an "
+                          "occluder gets the union of the parts' own footprints, not one "
+                          "hull across the occluder, where another object is seen standing "
+                          "between the parts (see geometry/completion.py).")
     completion_fill_holes_px: float = Field(
         0.0, ge=0, description="Before completing, give each mask pixel without a depth "
                                "reading within this many pixels of a kept point that "
@@ -464,10 +474,12 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
     cam = scene.camera
     depth = scene.depth_m[pix[:, 0], pix[:, 1]]
     pixel_m = float(np.median(depth)) / float(cam.K[0, 0])
+    own_px = np.argwhere(scene.masks == spec.id)
     if o.completion_clean_points:
         others_px = np.argwhere((scene.masks > 0) & (scene.masks != spec.id))
         keep = object_point_mask(pts, pix, depth, plane.point, plane.normal,
-                                 neighbour_pixels=others_px)
+                                 neighbour_pixels=others_px,
+                                 mask_pixels=own_px if o.completion_parts_by_mask else None)
         pts, pix = pts[keep], pix[keep]
     filled, filled_pix = fill_mask_holes(scene.masks == spec.id, scene.depth_m, pix, cam.K,
                                          cam.world_from_camera, o.completion_fill_holes_px,
@@ -477,6 +489,7 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
             if o.completion_carve else None)
     try:
         both_pix = np.concatenate([pix, filled_pix])
+        parts = part_labels(both_pix, own_px)[0] if o.completion_footprint_by_part else None
         shape = complete_from_points(np.concatenate([pts, filled]), plane.point, plane.normal,
                                      colors=scene.rgb[both_pix[:, 0], both_pix[:, 1]],
                                      cell_m=o.completion_cell_m, below_points_world=others,
@@ -485,7 +498,7 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
                                      extend_fraction=o.completion_extend_fraction,
                                      exclude=exclude,
                                      under_meshes_world=under if o.completion_rest_on_others
-                                     else ())
+                                     else (), point_parts=parts)
     except ValueError as exc:
         raise StageError(f"object {spec.id}: completion failed ({exc})") from None
     return shape.mesh, shape.world_from_object
