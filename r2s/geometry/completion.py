@@ -158,18 +158,18 @@ def _footprint(pts: np.ndarray, parts: np.ndarray | None, hull: ConvexHull, gx: 
     so only the parts seen are kept. "Seen inside": a grid cell between the parts holds
     :data:`INSIDE_MIN_POINTS` of ``others``' points (plane frame, (M, 3) or a list of such)
     lower than ``top`` ((nx, ny) top heights) by :data:`INSIDE_MARGIN_M`."""
+    if isinstance(others, list):
+        others = np.concatenate(others) if others else None
     hulls = None if parts is None or others is None else part_hulls(pts[:, :2], parts)
-    other = np.concatenate(others) if isinstance(others, list) else others
-    if hulls is None or len(other) == 0:
+    if hulls is None or len(others) == 0:
         return hull.equations
     xy = np.stack([gx, gy], axis=-1)
+    # the grid's outer cells lie outside every hull (padding), so clipped points count nowhere
     between = (footprint_sdf(hull.equations, xy) <= 0) & (footprint_sdf(hulls, xy) > 0)
-    ix = np.floor((other[:, 0] - gx[0, 0]) / cell + 0.5).astype(int)
-    iy = np.floor((other[:, 1] - gy[0, 0]) / cell + 0.5).astype(int)
-    ok = (ix >= 0) & (iy >= 0) & (ix < gx.shape[0]) & (iy < gx.shape[1])
-    ok[ok] = other[ok, 2] < top[ix[ok], iy[ok]] - INSIDE_MARGIN_M
+    ix, iy = _columns(others, gx[0, 0], gy[0, 0], *gx.shape, cell)
+    low = others[:, 2] < top[ix, iy] - INSIDE_MARGIN_M
     count = np.zeros(gx.shape, dtype=int)
-    np.add.at(count, (ix[ok], iy[ok]), 1)
+    np.add.at(count, (ix[low], iy[low]), 1)
     return hulls if np.any(between & (count >= INSIDE_MIN_POINTS)) else hull.equations
 
 
@@ -210,8 +210,8 @@ def _fill(values: np.ndarray, known: np.ndarray, xs: np.ndarray, ys: np.ndarray)
     return out
 
 
-def _beside(group: np.ndarray, hull_eq: np.ndarray | list[np.ndarray], z_low: float, margin_m: float,
-            beside_share: float, beside_m: float, min_points: int) -> bool:
+def _beside(group: np.ndarray, hull_eq: np.ndarray | list[np.ndarray], z_low: float,
+            margin_m: float, beside_share: float, beside_m: float, min_points: int) -> bool:
     """True when one other object's points (plane frame) within ``margin_m`` of the
     footprint rise past the object's lowest observed point ``z_low`` (by ``beside_m``, more
     than ``beside_share`` of them, at any height): a neighbour standing beside or in front
