@@ -58,6 +58,19 @@ def _init(root: Path, mode: str) -> dict[int, tuple[float, dict]]:
     return out
 
 
+def _summary(rows: np.ndarray) -> str:
+    """One line over the (K, 3) rows (CD prior, CD completion, replaced 0/1) of the priors
+    with both candidates: how many the margins replace, how many of those are closer to
+    gt as completions, and the mean CD at init of the choice, of all priors, of the better
+    candidate of each."""
+    replaced = rows[:, 2] > 0
+    chosen = np.where(replaced, rows[:, 1], rows[:, 0])
+    closer = int(np.sum(replaced & (rows[:, 1] < rows[:, 0])))
+    return (f"the margins replace {int(replaced.sum())} of {len(rows)} priors ({closer} of them "
+            f"closer to gt as completions); mean CD at init: as chosen {chosen.mean():.2f} mm, "
+            f"all priors {rows[:, 0].mean():.2f}, the better of each {rows[:, :2].min(axis=1).mean():.2f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scenes", nargs="+", type=Path)
@@ -71,6 +84,7 @@ def main() -> None:
           "| CD prior [mm] | CD completion [mm] | auto chooses | better against gt |")
     print("|---|---:|---|---|---|---:|---:|---|---|")
     by_rest: list[tuple[float, float]] = []  # (CD prior, CD completion) the rest rule swaps
+    chosen_cd: list[tuple[float, float, bool]] = []  # (CD prior, CD completion, replaced)
     for root in args.scenes:
         with_prior = _init(root, "prior")
         completed = _init(root, "completion")
@@ -90,12 +104,15 @@ def main() -> None:
             if chosen != choose(p, c, margins)[0]:
                 by_rest.append((cd_p, cd_c))
             best = "completion" if cd_c < cd_p else "prior"
+            chosen_cd.append((cd_p, cd_c, chosen == "completion"))
             rest_txt = "not alone" if alone is None else " / ".join(
                 f"{alone[k]['moved_mm']:.0f}, {alone[k]['turned_deg']:.0f}"
                 for k in ("prior", "completion"))
             print(f"| {root.name} | {i} | {p.iou:.2f} / {p.ucd_mm:.1f} / {p.free_space:.3f} "
                   f"| {c.iou:.2f} / {c.ucd_mm:.1f} / {c.free_space:.3f} | {rest_txt} "
                   f"| {cd_p:.1f} | {cd_c:.1f} | {chosen} | {best} |", flush=True)
+    if chosen_cd:
+        print("\n" + _summary(np.array(chosen_cd, dtype=float)))
     if by_rest:
         cd = np.array(by_rest)
         print(f"\nthe rest rule alone replaces {len(cd)} priors ({int(np.sum(cd[:, 1] < cd[:, 0]))} "
