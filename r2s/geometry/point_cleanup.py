@@ -166,7 +166,9 @@ def object_point_mask(points_world: np.ndarray, pixels: np.ndarray, depth_m: np.
     points_world : (N, 3) back-projected mask pixels; pixels : (N, 2) their (row, col);
     depth_m : (N,) their observed depths; plane_point, plane_normal : the support plane
     (normal up); neighbour_pixels : (M, 2) the other objects' mask pixels (the support
-    band's ring runs only where the mask borders no other object). At least
+    band's ring runs only where the mask borders no other object); mask_pixels : (K, 2)
+    the whole instance mask, pixels without depth too (the mask's parts are then sized by
+    their mask pixels, :func:`part_labels`; None: by their readings). At least
     ``min_keep_fraction`` of the points (and 10) are always kept: when a test would drop
     more it is skipped.
     """
