@@ -474,16 +474,17 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
     cam = scene.camera
     depth = scene.depth_m[pix[:, 0], pix[:, 1]]
     pixel_m = float(np.median(depth)) / float(cam.K[0, 0])
-    own_px = np.argwhere(scene.masks == spec.id)
+    own = scene.masks == spec.id
+    own_px = np.argwhere(own)
+    other_masks = (scene.masks > 0) & ~own
     if o.completion_clean_points:
-        others_px = np.argwhere((scene.masks > 0) & (scene.masks != spec.id))
         keep = object_point_mask(pts, pix, depth, plane.point, plane.normal,
-                                 neighbour_pixels=others_px,
+                                 neighbour_pixels=np.argwhere(other_masks),
                                  mask_pixels=own_px if o.completion_parts_by_mask else None)
         pts, pix = pts[keep], pix[keep]
-    filled, filled_pix = fill_mask_holes(scene.masks == spec.id, scene.depth_m, pix, cam.K,
+    filled, filled_pix = fill_mask_holes(own, scene.depth_m, pix, cam.K,
                                          cam.world_from_camera, o.completion_fill_holes_px,
-                                         others=(scene.masks > 0) & (scene.masks != spec.id))
+                                         others=other_masks)
     table = (plane.point, plane.normal) if o.completion_carve_table else None
     view = (carve_view(cam.K, cam.world_from_camera, scene.depth_m, pix, plane=table)
             if o.completion_carve else None)
