@@ -14,7 +14,7 @@ STAMP := $(VENV)/.r2s-installed
 
 .PHONY: setup demo test test-all bench batch report clean-batch
 
-$(STAMP): pyproject.toml scripts/setup_env.sh
+$(STAMP): pyproject.toml requirements-lock.txt scripts/setup_env.sh
 	bash scripts/setup_env.sh $(VENV)
 	touch $(STAMP)
 

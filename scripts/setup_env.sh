@@ -39,7 +39,14 @@ fi
 "$VENV/bin/python" -m pip install -q --upgrade pip
 # torch first and pinned: 2.13.0 is a CPU build available offline; anything else pulls CUDA.
 "$VENV/bin/python" -m pip install -q "torch==2.13.0"
-"$VENV/bin/python" -m pip install -q -e ".[test]"
+# Pinned versions where the lock was made for this Python (results differ with versions).
+LOCK=()
+if "$VENV/bin/python" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))'; then
+  LOCK=(-c "$(cd "$(dirname "$0")/.." && pwd)/requirements-lock.txt")
+else
+  echo "warning: requirements-lock.txt is for Python 3.11; installing unpinned versions" >&2
+fi
+"$VENV/bin/python" -m pip install -q "${LOCK[@]}" -e ".[test]"
 "$VENV/bin/python" -c "import r2s, torch, open3d, pybullet, trimesh, coacd; print('r2s environment ready')"
 
 # The Khronos glTF validator (npm package gltf-validator) for the export tests; optional:
