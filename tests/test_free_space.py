@@ -50,3 +50,26 @@ def test_points_facing_away_or_outside_the_image_are_not_tested():
     pts = np.array([[-0.2, 0.0, 0.1], [3.0, 0.0, 0.1]])
     viol, _, tested = free_space_violations(view, pts, np.array([[0, 0, -1.0], [0, 0, 1.0]]))
     assert tested == 0 and not viol.any()
+
+
+def test_no_reading_on_another_instance_says_nothing():
+    """An occluder that reads no depth (dark, glossy) hides what is behind it: a model point
+    under its mask is not seen past when the other masks are given; a point over the table
+    where the reading is lost still is."""
+    depth, mask = _view()
+    depth[40:60, 70:90] = np.nan                 # the occluder reads no depth
+    depth[20:25, 40:60] = np.nan                 # a hole in the table's reading
+    others = np.zeros_like(mask)
+    others[40:60, 70:90] = True
+    px = np.array([[50, 75], [22, 50]])          # under the occluder; over the table's hole
+    d = np.zeros((100, 100))
+    d[px[:, 0], px[:, 1]] = 0.9
+    pts, pix = backproject(np.where(d > 0, d, np.nan), K, CAM, return_pixels=True)
+    pts = pts[[int(np.flatnonzero((pix == p).all(axis=1))[0]) for p in px]]
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    masks_unknown, _, _ = free_space_violations(view_constraint(K, CAM, depth, mask), pts,
+                                                normals, 0.01)
+    assert masks_unknown.tolist() == [True, True]
+    given, _, tested = free_space_violations(
+        view_constraint(K, CAM, depth, mask, other_masks=others), pts, normals, 0.01)
+    assert tested == 2 and given.tolist() == [False, True]

@@ -169,3 +169,27 @@ def test_voxel_downsample_and_surface_fit():
 def test_too_few_points_is_an_error():
     with pytest.raises(ValueError):
         register_prior(trimesh.creation.box(), np.zeros((5, 3)))
+
+
+def test_an_occluder_without_depth_does_not_push_the_prior_away():
+    """The half-occluded box again, but the occluder reads no depth. Counted as seen past,
+    its pixels push the box out from behind it; as another instance's pixels they say
+    nothing, and the box stays where it is."""
+    box = trimesh.creation.box((0.12, 0.05, 0.06))
+    truth = pose([0.0, 0.0, 0.03])
+    K = intrinsics(W, H, 40.0)
+    cam = look_at([0.0, -0.5, 0.03], [0.0, 0.0, 0.03])
+    extra = (SynthObject(2, trimesh.creation.box((0.08, 0.01, 0.2)), pose([-0.04, -0.15, 0.1])),)
+    _, depth, masks = render_view([SynthObject(1, box, truth), *extra], K, cam, W, H)
+    depth[masks == 2] = np.nan
+    pts = backproject(depth, K, cam, masks == 1)
+    opts = IcpOptions(local_yaw_steps=1, global_fallback_fitness=0.0)
+    blind = register_prior(box, pts, truth, options=opts,
+                           view=view_constraint(K, cam, depth, masks == 1))
+    aware = register_prior(box, pts, truth, options=opts,
+                           view=view_constraint(K, cam, depth, masks == 1,
+                                                other_masks=masks == 2))
+    moved = max(pose_error(blind.world_from_object, truth)[0], abs(blind.scale - 1.0) * 0.12)
+    assert moved > 0.005
+    dt, dr = pose_error(aware.world_from_object, truth)
+    assert dt < 0.002 and dr < 1.0 and abs(aware.scale - 1.0) < 0.01

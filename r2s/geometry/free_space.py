@@ -4,12 +4,16 @@ Where the camera sees *past* a model point (the observed surface at its pixel is
 away than the point) and the pixel is not the instance's, the model cannot be there: it
 would have hidden what the camera saw. Such points are pulled towards the nearest pixel
 of the instance's mask. Pixels where something is *in front of* the model say nothing
-(occlusion), nor do pixels outside the image.
+(occlusion), nor do pixels outside the image. A pixel without a depth reading counts as
+seen past (the camera saw nothing there), except inside another instance's mask when those
+masks are given: that instance is what the camera saw there, and this one may be hidden
+behind it (dark or glossy occluders often read no depth).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 from scipy import ndimage
@@ -33,6 +37,8 @@ class ViewConstraint:
     window : (r0, r1, c0, c1) in full-image pixels.
     image_size : (height, width) of the full image.
     margin_px : distance from the mask (pixels) beyond which a projection is a violation.
+    others : (h, w) bool, the other instances' masks in the window, or None (then a pixel
+        without a depth reading is seen past wherever it is).
     """
 
     K: np.ndarray
@@ -43,10 +49,12 @@ class ViewConstraint:
     window: tuple[int, int, int, int]
     image_size: tuple[int, int]
     margin_px: float = 1.5
+    others: Optional[np.ndarray] = None
 
 
 def view_constraint(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray,
-                    own_mask: np.ndarray, margin_px: float = 1.5) -> ViewConstraint:
+                    own_mask: np.ndarray, margin_px: float = 1.5,
+                    other_masks: Optional[np.ndarray] = None) -> ViewConstraint:
     """Precompute the free-space test of one instance.
 
     Parameters
@@ -58,6 +66,9 @@ def view_constraint(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.nd
         than a pixel from the nearest pixel that sees the object (corners, thin parts),
         so below about 1.5 px the term pulls a correct pose inward; raise it for masks
         whose edges are uncertain.
+    other_masks : (H, W) bool, the pixels of the other instances, or None: where given, a
+        pixel there without a depth reading says nothing (the other instance may hide this
+        one); elsewhere it counts as seen past.
     """
     own_mask = np.asarray(own_mask, dtype=bool)
     rows, cols = np.nonzero(own_mask)
@@ -75,7 +86,9 @@ def view_constraint(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.nd
                           depth_m=np.asarray(depth_m, dtype=np.float64),
                           own=own, nearest=nearest.astype(np.int64),
                           window=(int(r0), int(r1), int(c0), int(c1)),
-                          image_size=(height, width), margin_px=float(margin_px))
+                          image_size=(height, width), margin_px=float(margin_px),
+                          others=None if other_masks is None
+                          else np.asarray(other_masks, dtype=bool)[r0:r1, c0:c1])
 
 
 def free_space_violations(view: ViewConstraint, points_world: np.ndarray,
@@ -111,7 +124,11 @@ def free_space_violations(view: ViewConstraint, points_world: np.ndarray,
     uv_safe = np.where(ok[:, None], uv, 0.0)
     off_mask = np.hypot(uv_safe[:, 0] - nc, uv_safe[:, 1] - nr) > view.margin_px
     d = view.depth_m[np.clip(row, 0, height - 1), np.clip(col, 0, width - 1)]
-    seen_past = ~np.isfinite(d) | (d > z + tolerance_m)
+    no_reading = ~np.isfinite(d)
+    if view.others is not None:
+        in_window = (row >= r0) & (row < r1) & (col >= c0) & (col < c1)
+        no_reading &= ~(in_window & view.others[rr, cc])
+    seen_past = no_reading | (d > z + tolerance_m)
     viol = ok & off_mask & seen_past
     nr, nc = nr[viol], nc[viol]
     pix = np.stack([nc, nr, np.ones_like(nc)], axis=1).astype(np.float64)

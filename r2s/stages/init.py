@@ -111,6 +111,11 @@ class Options(StageOptions):
                                         "its mask a prior may project before the "
                                         "free-space term pushes it back; raise it for "
                                         "masks with uncertain edges.")
+    silhouette_unread_others_seen_past: bool = Field(
+        False, description="Free-space term: a pixel of another instance's mask without a "
+                           "depth reading counts as seen past, as everywhere else (the rule "
+                           "before 2026-11-25). Off: it says nothing, since that instance may "
+                           "hide this one there (geometry/free_space.py).")
     icp_yaw_hypotheses: int = Field(8, ge=1, description="With a given prior pose, also try "
                                     "it turned about the support normal by 360/N degree "
                                     "steps (1 = only the given pose).")
@@ -304,8 +309,10 @@ def _register(scene: InputScene, spec: ObjectSpec, pts: np.ndarray, plane: Plane
     bounding-box centre; scale per axis) and the registration's result."""
     cam = scene.camera
     prior = _checked_prior(spec, pts, flags)
+    others = (None if o.silhouette_unread_others_seen_past
+              else (scene.masks > 0) & (scene.masks != spec.id))
     view = view_constraint(cam.K, cam.world_from_camera, scene.depth_m, scene.masks == spec.id,
-                           margin_px=o.silhouette_margin_px)
+                           margin_px=o.silhouette_margin_px, other_masks=others)
     reg_pts = voxel_downsample(pts, o.voxel_size_m)
     if len(reg_pts) < MIN_OBJECT_POINTS:
         reg_pts = pts
