@@ -71,7 +71,8 @@ def test_a_prior_that_rests_only_far_away_gives_way_to_its_completion(tmp_path: 
                                                                  SEEN_POSE_KEY, None)
     log = json.loads((root / "physopt" / "log.json").read_text())
     assert log["swap_to_completion"] == {"ids": [1], "flagged_before": [1],
-                                         "flagged_after": [], "pooled_iou_before": None,
+                                         "flagged_after": [], "moving_before": [],
+                                         "moving_after": [], "pooled_iou_before": None,
                                          "pooled_iou_after": None, "kept": True}
 
 

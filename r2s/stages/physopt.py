@@ -206,7 +206,10 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
                             _pooled_iou(view, meshes2, solved2.params))
     keep = prefer_swapped(before, after)
     record = {"ids": sorted(swap), "flagged_before": sorted(solved.flags),
-              "flagged_after": sorted(solved2.flags), "pooled_iou_before": before.pooled_iou,
+              "flagged_after": sorted(solved2.flags),
+              "moving_before": sorted(opt.moving(solved.drift)),
+              "moving_after": sorted(opt.moving(solved2.drift)),
+              "pooled_iou_before": before.pooled_iou,
               "pooled_iou_after": after.pooled_iou, "kept": keep}
     if not keep:
         log["swap_to_completion"] = record
