@@ -5,9 +5,10 @@ set -euo pipefail
 VENV="${1:-.venv}"
 PYTHON="${PYTHON:-python3}"
 
-# Debian packages: open3d's import needs libusb and the GL/EGL libraries.
+# Debian packages: open3d's import needs libusb and the GL/EGL libraries; the tests render
+# headless with OSMesa (tests/conftest.py sets PYOPENGL_PLATFORM and MUJOCO_GL to osmesa).
 need=()
-for pkg in libusb-1.0-0 libgl1 libegl1; do
+for pkg in libusb-1.0-0 libgl1 libegl1 libosmesa6; do
   dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
 done
 if [ ${#need[@]} -gt 0 ]; then
