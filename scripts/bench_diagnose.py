@@ -63,6 +63,7 @@ CASES: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
     "dark_depth": ({}, ()),
     "focal_error": ({}, ("focal_length",)),
     "principal_point_error": ({}, ()),
+    "depth_shift": ({}, ()),
 }
 """case -> (synth effects, the effects diagnose should name). ``row_depth``,
 ``principal_point_error``, ``disparity_bias`` and ``dark_depth`` are outside the catalogue
@@ -71,7 +72,8 @@ CASES: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
 diagnose should report them as unexplained structure and name nothing. ``focal_error`` (:func:`add_focal_error`,
 injected by this script too) is in the catalogue as ``focal_length``."""
 
-UNCATALOGUED = {"row_depth", "principal_point_error", "disparity_bias", "dark_depth"}
+UNCATALOGUED = {"row_depth", "principal_point_error", "disparity_bias", "dark_depth",
+                "depth_shift"}
 ROW_DEPTH_ERROR_M = 0.006
 """The uncatalogued effect: depth reads long by 6 mm x (row offset from the centre,
 -1..1)^2, a gutter along the image rows."""
@@ -84,6 +86,10 @@ light-absorbing materials do on active depth sensors (a black pixel 8 mm, a whit
 FOCAL_ERROR = 0.04
 """The second uncatalogued effect: camera.json declares fx, fy (1 + 0.04) times the true
 ones (a mis-calibrated focal length); the images are the true camera's."""
+DEPTH_SHIFT_FRACTION = 0.008
+"""The depth image of ``depth_shift`` lies this fraction of the image width to the right
+of the colour image and masks (2.6 px at 320 px, 5 px at 640): a depth-to-colour
+registration error of real RGB-D sensors."""
 PRINCIPAL_POINT_ERROR = 0.025
 """A third: camera.json declares cx, cy shifted by 2.5 % of the image width and height
 (8 and 6 px at 320 x 240) from the true ones."""
@@ -188,9 +194,24 @@ def add_principal_point_error(scene: Path, error: float = PRINCIPAL_POINT_ERROR)
                      {"value": error, "shift_px": shift_px, "true_K": true_k})
 
 
+def add_depth_shift(scene: Path, fraction: float = DEPTH_SHIFT_FRACTION) -> None:
+    """Inject a depth-to-colour misregistration into input/depth.png (recorded in gt/
+    only): the depth image moves ``fraction`` of the image width to the right (nearest
+    pixel), the columns it uncovers read nothing; rgb.png and masks.png stay."""
+    def transform(depth: np.ndarray) -> np.ndarray:
+        shift = int(round(fraction * depth.shape[1]))
+        out = np.full_like(depth, np.nan)
+        out[:, shift:] = depth[:, :depth.shape[1] - shift]
+        return out
+
+    _rewrite_depth(scene, transform)
+    _record_injected(scene, "depth_shift", {"fraction_of_width": fraction})
+
+
 SCRIPT_INJECT = {"row_depth": add_row_depth_error, "focal_error": add_focal_error,
                  "principal_point_error": add_principal_point_error,
-                 "disparity_bias": add_disparity_bias, "dark_depth": add_dark_depth_bias}
+                 "disparity_bias": add_disparity_bias, "dark_depth": add_dark_depth_bias,
+                 "depth_shift": add_depth_shift}
 """case -> the function that injects it into a synthesised scene."""
 
 

@@ -316,6 +316,7 @@ class DepthMapData:
         the same depth, so its residual says nothing about the depth's errors).
     view_cosine : (H, W) |cosine| between the pixel's ray and the rendered surface's normal
         (NaN: none), or None.
+    masks : (H, W) int, the input's instance masks (0: none), or None.
     """
 
     residual_m: np.ndarray
@@ -325,6 +326,7 @@ class DepthMapData:
     grey: Optional[np.ndarray] = None
     prior_ids: tuple = ()
     view_cosine: Optional[np.ndarray] = None
+    masks: Optional[np.ndarray] = None
 
 
 # ---- table shape: the table points' distance to one plane (r2s.diagnose.stats.table_shape) -----

@@ -170,6 +170,40 @@ def structure_figure(finding, width: int, height: int, title: str) -> bytes:
     return data
 
 
+def edge_figure(finding, title: str) -> bytes:
+    """PNG bytes of a depth-to-colour misregistration (:class:`r2s.diagnose.stats.
+    edge_alignment.EdgeFinding`): the masks' outline pixels on a depth edge against the
+    shift, summed over the objects, with the scene's top and each object's own."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    corr = np.asarray(finding.correlation, dtype=float)
+    s = corr.shape[0] // 2
+    fig, ax = plt.subplots(figsize=(5.6, 4.8))
+    im = ax.imshow(corr, origin="upper", extent=(-s - 0.5, s + 0.5, s + 0.5, -s - 0.5),
+                   cmap="viridis")
+    fig.colorbar(im, ax=ax, label="mask outline pixels on a depth edge")
+    for oid, (dx, dy) in sorted(finding.peaks_px.items()):
+        ax.plot(dx, dy, "w.", ms=6)
+        ax.annotate(str(oid), (dx, dy), color="w", fontsize=7, xytext=(3, 3),
+                    textcoords="offset points")
+    ax.plot(*finding.shift_px, "r+", ms=14, mew=2, label="scene")
+    ax.axhline(0, color="w", lw=0.5)
+    ax.axvline(0, color="w", lw=0.5)
+    ax.set_xlabel("depth edges right of the mask outline (px)")
+    ax.set_ylabel("depth edges below the mask outline (px)")
+    ax.set_title(f"shift ({finding.shift_px[0]:+.1f}, {finding.shift_px[1]:+.1f}) px, "
+                 f"{finding.agreement:.0%} of objects agree", fontsize=9)
+    ax.legend(fontsize=7, loc="lower right")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    data = _png(fig)
+    plt.close(fig)
+    return data
+
+
 def colour_figure(finding, title: str) -> bytes:
     """PNG bytes of a colour-dependent depth error (:class:`r2s.diagnose.stats.colour_test.
     ColourFinding`): each registered prior's patch residuals against their grey level, with

@@ -32,7 +32,8 @@ class ReportInput:
     effects kept (fits); steps : one summary dict per step; before / predicted / after :
     residuals before, as the last kept fit predicts them, measured after the last kept
     rerun; structure_final / unexplained : summaries of the final structure test;
-    colour_final : of the final colour test (r2s.diagnose.stats.colour_test).
+    colour_final : of the final colour test (r2s.diagnose.stats.colour_test); edge_final :
+    of the depth-to-colour registration test (r2s.diagnose.stats.edge_alignment).
     """
 
     scene: str
@@ -53,6 +54,7 @@ class ReportInput:
     unexplained: Optional[dict] = None
     gravity: Optional[dict] = None
     colour_final: Optional[dict] = None
+    edge_final: Optional[dict] = None
 
 
 def build_report(r: ReportInput) -> dict[str, Any]:
@@ -83,6 +85,7 @@ def build_report(r: ReportInput) -> dict[str, Any]:
         "structure_after": structure(r.after) if r.after is not None else None,
         "structure_test": r.structure_final,
         "colour_test": r.colour_final,
+        "edge_test": r.edge_final,
         "unexplained": r.unexplained,
         "gravity": r.gravity,
         "gt_errors": None if r.gt_before is None else {"before": r.gt_before,
@@ -121,6 +124,9 @@ def _decision_lines(report: dict) -> list[str]:
         lines.append(f"\n**Unexplained structured residual**: {un['pattern']} "
                      f"(p = {un['p_value']:.2g}); no catalogued effect explains it "
                      "(see structure.png).")
+    elif un and un.get("test") == "edge alignment":
+        lines.append(f"\n**Unexplained structured residual**: {un['pattern']}; no catalogued "
+                     "effect explains it (see structure.png).")
     elif un:
         lines.append(f"\n**Unexplained structured residual**: {un['pattern']} "
                      f"(chi-square {un['chi2']:.0f} on {un['dof']} tiles' degrees of freedom, "

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from r2s.console import ProgressFn, silent_progress
+from r2s.diagnose.data import Residuals
 from r2s.diagnose.stats.blocks import blocks_of, total_sse
 from r2s.diagnose.effects.base import Effect, EffectFit
 from r2s.diagnose.stats.ranking import NoiseBar, Round, rank, supported
@@ -36,6 +37,7 @@ from r2s.runner.rerun import rerun_with_effects, temporary_root
 from r2s.diagnose.measure.scene_dir import Measured, MeasureSettings, measure_scene, scene_gt_errors
 from r2s.diagnose.stats.steps import StepJudgement, claimed_blocks, judge_step, leaves_structure
 from r2s.diagnose.stats.colour_test import Z_THRESHOLD, ColourFinding, test_surface_colour
+from r2s.diagnose.stats.edge_alignment import MIN_SHIFT_PX, EdgeFinding, test_edge_alignment
 from r2s.diagnose.stats.structure_test import StructureFinding, test_structure
 
 
@@ -54,6 +56,7 @@ class LoopConfig:
     rerun_stages: Optional[list] = None
     structure_alpha: float = 1e-3
     colour_z: float = Z_THRESHOLD
+    edge_shift_px: float = MIN_SHIFT_PX
     joint_refit: bool = True
     lookahead: bool = True
 
@@ -94,11 +97,12 @@ class LoopResult:
     steps: list
     rounds: list
     stages: list
-    unexplained: Optional[StructureFinding | ColourFinding]
+    unexplained: Optional[StructureFinding | ColourFinding | EdgeFinding]
     structure_final: Optional[StructureFinding]
     notes: list
     copy: Optional[Path] = None
     colour_final: Optional[ColourFinding] = None
+    edge_final: Optional[EdgeFinding] = None
 
 
 GT_HEADLINE = ("state_centroid_error_mm", "state_centroid_error_median_mm",
@@ -269,20 +273,35 @@ def run_loop(root: Path, settings: MeasureSettings, cfg: LoopConfig,
                     copies.keep(copy)
                 else:
                     copies.drop(copy)
-        final_structure = test_structure(current.residuals, cfg.structure_alpha)
-        unexplained = final_structure if final_structure is not None and \
-            final_structure.structured else None
-        colour = test_surface_colour(current.residuals, cfg.colour_z)
-        if unexplained is None:  # the table is flat: is the objects' depth error colour's?
-            unexplained = colour if colour is not None and colour.structured else None
+        unexplained, final_structure, colour, edges = _final_tests(current.residuals, cfg)
         result = LoopResult(before, current, gt_before, gt_now if kept else None, kept, steps,
                             rounds, stages if kept else [], unexplained, final_structure, notes,
-                            copies.current, colour_final=colour)
+                            copies.current, colour_final=colour, edge_final=edges)
     except BaseException:
         copies.cleanup()
         raise
     result._copies = copies  # type: ignore[attr-defined]
     return result
+
+
+def _final_tests(res: Residuals, cfg: LoopConfig) -> tuple:
+    """(unexplained, structure, colour, edges) after the loop: the table's structure test;
+    when the table is flat, is the objects' depth error colour's; and else, do the depth
+    image and the masks not line up? ``unexplained`` is the first structured finding."""
+    structure = test_structure(res, cfg.structure_alpha)
+    colour = test_surface_colour(res, cfg.colour_z)
+    edges = _edge_test(res, cfg.edge_shift_px)
+    found = [f for f in (structure, colour, edges) if f is not None and f.structured]
+    return (found[0] if found else None), structure, colour, edges
+
+
+def _edge_test(res: Residuals, min_shift_px: float) -> Optional[EdgeFinding]:
+    """Depth-to-colour registration test (r2s.diagnose.stats.edge_alignment) on the
+    observation as the current model corrects it; None without a depth map or masks."""
+    dm = res.depth_map
+    if dm is None or dm.masks is None:
+        return None
+    return test_edge_alignment(dm.depth_m, dm.masks, min_shift_px=min_shift_px)
 
 
 def release(result: LoopResult, keep_copy: bool) -> Optional[Any]:

@@ -25,8 +25,9 @@ import numpy as np
 
 from r2s.diagnose.effects import all_effects
 from r2s.diagnose.stats.camera_or_table import camera_or_table
-from r2s.diagnose.plots import colour_figure, residual_figure, structure_figure
+from r2s.diagnose.plots import colour_figure, edge_figure, residual_figure, structure_figure
 from r2s.diagnose.stats.colour_test import Z_THRESHOLD as COLOUR_Z, ColourFinding
+from r2s.diagnose.stats.edge_alignment import MIN_SHIFT_PX as EDGE_SHIFT_PX, EdgeFinding
 from r2s.diagnose.stats.ranking import NoiseBar
 from r2s.diagnose.report import ReportInput, build_report, markdown
 from r2s.diagnose.measure.scene_dir import MeasureSettings
@@ -71,6 +72,11 @@ class Options(StageOptions):
                                                    "registered priors' residual gives |z| at "
                                                    "least this (diagnose/stats/colour_test.py; "
                                                    "clean scenes reach 4.8).")
+    edge_shift_px: float = Field(EDGE_SHIFT_PX, gt=0, description="The depth image's edges "
+                                 "lying this many pixels or more off the masks' edges (most "
+                                 "objects agreeing) are reported as a depth-to-colour "
+                                 "misregistration (diagnose/stats/edge_alignment.py; clean "
+                                 "scenes reach 1.2).")
     table_shape_sigma_m: float = Field(0.0004, gt=0, description="Noise of a table tile's "
                                                                  "mean distance to its plane.")
     rerun: bool = Field(True, description="Rerun the affected stages on a copy of the scene to "
@@ -201,6 +207,7 @@ def loop_config(options: Options) -> LoopConfig:
                if options.noise_draws > 0 else None),
         rerun=options.rerun, rerun_stages=options.rerun_stages or None,
         structure_alpha=options.structure_alpha, colour_z=options.colour_z,
+        edge_shift_px=options.edge_shift_px,
         joint_refit=options.joint_refit,
         lookahead=options.lookahead)
 
@@ -230,6 +237,7 @@ def run(ctx: StageContext) -> dict:
         applied=bool(options.apply and kept), model=new_model, notes=tuple(notes),
         structure_final=loop.structure_final.summary() if loop.structure_final else None,
         colour_final=loop.colour_final.summary() if loop.colour_final else None,
+        edge_final=loop.edge_final.summary() if loop.edge_final else None,
         unexplained=loop.unexplained.summary() if loop.unexplained else None,
         gravity=camera_or_table(loop.rounds[0] if loop.rounds else None, kept,
                                 options.camera_prior_odds)))
@@ -242,7 +250,11 @@ def run(ctx: StageContext) -> dict:
                                            title))
         finding = loop.unexplained or loop.structure_final
         shape = loop.final.residuals.table_shape
-        if isinstance(finding, ColourFinding):
+        if isinstance(finding, EdgeFinding):
+            atomic_write_bytes(ctx.out_dir / "structure.png", edge_figure(
+                finding, f"{paths.root.name}: depth edges against mask edges, unexplained "
+                         "structure"))
+        elif isinstance(finding, ColourFinding):
             atomic_write_bytes(ctx.out_dir / "structure.png", colour_figure(
                 finding, f"{paths.root.name}: residual left after the loop, unexplained "
                          "structure"))

@@ -200,7 +200,8 @@ def depth_residual_map(inp: InputScene, objects: list[ObjectModel],
                         grey=grey_image(inp),
                         prior_ids=tuple(o.id for o in objects if o.prior_area_m2 is not None),
                         view_cosine=_view_cosine(meshes, index, triangle, cam.K,
-                                                 cam.world_from_camera))
+                                                 cam.world_from_camera),
+                        masks=np.asarray(inp.masks))
 
 
 def _view_cosine(meshes_world: list, index: np.ndarray, triangle: np.ndarray, K: np.ndarray,
