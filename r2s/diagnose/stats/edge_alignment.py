@@ -28,10 +28,11 @@ and at least ``min_agreement`` of the objects agree: their own shift lies on the
 side, at least half as far. One object whose outline meets another object's edges can
 pull the summed top a little, but not the others' tops.
 
-Thresholds (docs/diagnose.md, section 6), set with these scenes in view: without a shift the
-estimate reached 1.0 px on 19 clean 320x240 benchmark-like scenes and 0.94 px on 22 realistic,
-held-out and further scenes with segmenter masks (640x480 and one 1280x720); with the depth
-image moved 3 px right it was 1.8-4.0 px, and at least 71 % of the objects agreed.
+Thresholds (docs/diagnose.md, section 6; set with those scenes in view, nothing held out):
+without a shift the estimate reached 1.0 px on 19 clean 320x240 benchmark-like scenes and
+0.94 px on 22 scenes with segmenter masks or the seed demo's (640x480, one 1280x720); with
+the depth image moved 3 px right it read 1.8-4.0 px, and at least 71 % of the objects agreed
+(``python scripts/edge_alignment_scan.py``).
 """
 
 from __future__ import annotations
