@@ -113,3 +113,46 @@ def test_a_box_whose_outline_and_dark_pixels_read_no_depth_keeps_its_footprint(
     bare, bare_iou = _complete_box(camera, depth, mask, fill_px=0)
     assert (1.0 - bare.extents[:2] / truth.extents[:2]).max() > 0.09
     assert bare_iou < 0.9
+
+
+def _plane_depth(height_m: float, camera: np.ndarray) -> np.ndarray:
+    """(H, W) camera-z depth of the horizontal plane z = height_m (world), NaN where the
+    ray does not fall onto it."""
+    rows, cols = np.mgrid[0:H, 0:W].astype(np.float64)
+    rays = np.stack([(cols - K[0, 2]) / K[0, 0], (rows - K[1, 2]) / K[1, 1],
+                     np.ones_like(cols)], axis=-1) @ camera[:3, :3].T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = (height_m - camera[2, 3]) / rays[..., 2]
+    return np.where(z > 0, z, np.nan)
+
+
+@pytest.mark.parametrize("elevation_deg", [30.0, 50.0])
+def test_height_rule_puts_the_unread_far_edge_of_a_level_top_on_it(elevation_deg):
+    """The level top of a box (z = 60 mm) seen obliquely, its far 8 rows (the top of its
+    silhouette) unread, as a sensor loses a grazing far edge. With the support plane, the
+    filled points lie on the top face itself (|z - 0.06| < 1e-9 m), on their own rays, and
+    behind the nearest reading; the nearest reading's depth would put them up to
+    8 px * z / f above it. Holes in the near rows (the lower outline) keep the nearest
+    reading's depth under both rules."""
+    e = np.radians(elevation_deg)
+    camera = look_at(np.array([-0.6 * np.cos(e), 0.0, 0.6 * np.sin(e)]), np.zeros(3))
+    depth = _plane_depth(0.06, camera)
+    mask = np.zeros((H, W), dtype=bool)
+    mask[90:150, 120:200] = True
+    depth[~mask] = np.nan
+    depth[90:98, 120:200] = np.nan     # far edge: the top rows of the image
+    depth[146:150, 120:200] = np.nan   # near edge: the bottom rows
+    kept = np.argwhere(np.isfinite(depth))
+    plane = (np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    by_height, px = fill_mask_holes(mask, depth, kept, K, camera, radius_px=8, plane=plane)
+    by_depth, px_d = fill_mask_holes(mask, depth, kept, K, camera, radius_px=8)
+    assert np.array_equal(px, px_d)
+    far, near = px[:, 0] < 98, px[:, 0] >= 146
+    assert far.sum() == 8 * 80 and near.sum() == 4 * 80
+    assert np.abs(by_height[far, 2] - 0.06).max() < 1e-9
+    assert (by_depth[far, 2] - 0.06).max() > 5 * 0.6 / K[0, 0] * 0.5  # the old rule: above
+    assert np.allclose(by_height[near], by_depth[near], atol=1e-12)
+    cam_points = (by_height - camera[:3, 3]) @ camera[:3, :3]
+    uv = (K @ cam_points.T).T
+    assert np.allclose(uv[:, 0] / uv[:, 2], px[:, 1], atol=1e-6)
+    assert np.allclose(uv[:, 1] / uv[:, 2], px[:, 0], atol=1e-6)

@@ -12,6 +12,15 @@ without depth is not guessed. Nor is a pixel within ``neighbour_gap_px`` of anot
 object's mask: a segmenter's mask bleeds onto a touching neighbour, whose edge pixels read
 no depth as often as any, and filling them would grow the object into its neighbour.
 
+With the support plane given (``plane``), a pixel whose ray passes *above* its nearest
+reading at that reading's depth takes the depth where the ray comes down to the reading's
+height above the plane instead: the surface continues behind at the same height. That is
+the top of a silhouette seen obliquely: the grazing top and back of a ball, a can or a
+bottle read no depth, and the nearest reading's depth would make the object taller
+where it is deeper. A pixel whose ray passes below (the lower outline) or level keeps the
+nearest reading's depth, so the rule only ever moves a point away from the camera, never
+by more than the ray's fall to that height.
+
 Frames: pixels are ``(row, col)``; depth is metres along the camera's z axis (OpenCV
 camera: x right, y down, z forward); points are in the world frame of ``world_from_camera``.
 """
@@ -35,7 +44,8 @@ realistic benchmark's segmenter model is 4 px)."""
 def fill_mask_holes(mask: np.ndarray, depth_m: np.ndarray, kept_pixels: np.ndarray,
                     K: np.ndarray, world_from_camera: np.ndarray,
                     radius_px: float = FILL_RADIUS_PX, others: np.ndarray | None = None,
-                    neighbour_gap_px: float = NEIGHBOUR_GAP_PX
+                    neighbour_gap_px: float = NEIGHBOUR_GAP_PX,
+                    plane: tuple[np.ndarray, np.ndarray] | None = None
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Points for the object's mask pixels that have no depth reading.
 
@@ -50,6 +60,10 @@ def fill_mask_holes(mask: np.ndarray, depth_m: np.ndarray, kept_pixels: np.ndarr
         depth it takes; <= 0 fills nothing.
     others : (H, W) bool, the other objects' masks, or None; empty pixels within
         ``neighbour_gap_px`` (Euclidean) of them are not filled.
+    plane : ``(point, unit normal)`` of the support plane (world, metres; the normal points
+        up, towards the camera's side), or None. Given, a pixel whose ray at its nearest
+        reading's depth lies above that reading's height takes the (larger) depth where
+        the ray reaches that height (see the module's docstring).
 
     Returns
     -------
@@ -71,6 +85,42 @@ def fill_mask_holes(mask: np.ndarray, depth_m: np.ndarray, kept_pixels: np.ndarr
     dist, nearest = cKDTree(kept).query(holes, distance_upper_bound=float(radius_px) + 1e-6)
     reached = np.isfinite(dist)
     holes, nearest = holes[reached], nearest[reached]
+    z = depth[kept[nearest, 0], kept[nearest, 1]]
+    if plane is not None:
+        z = _continued_at_height(z, holes, kept[nearest], depth, K, world_from_camera, plane)
     filled = np.zeros_like(depth)
-    filled[holes[:, 0], holes[:, 1]] = depth[kept[nearest, 0], kept[nearest, 1]]
+    filled[holes[:, 0], holes[:, 1]] = z
     return backproject(filled, K, world_from_camera, return_pixels=True)
+
+
+def _rays_per_depth(pixels: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(N, 3) camera-frame ray of each ``(row, col)`` pixel, scaled to camera z = 1."""
+    k = np.asarray(K, dtype=np.float64)
+    rows, cols = pixels[:, 0].astype(np.float64), pixels[:, 1].astype(np.float64)
+    x = (cols - k[0, 2] - k[0, 1] * (rows - k[1, 2]) / k[1, 1]) / k[0, 0]
+    y = (rows - k[1, 2]) / k[1, 1]
+    return np.stack([x, y, np.ones_like(x)], axis=1)
+
+
+def _continued_at_height(z_nearest: np.ndarray, holes: np.ndarray, sources: np.ndarray,
+                         depth: np.ndarray, K: np.ndarray, world_from_camera: np.ndarray,
+                         plane: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """(N,) depth (camera z, m) of each hole: ``max(z_nearest, z at the source's height)``.
+
+    ``holes`` and ``sources`` are (N, 2) ``(row, col)``: each hole and the kept pixel it
+    takes its depth from. The height of a world point is ``normal . (x - point)``.
+    """
+    T = np.asarray(world_from_camera, dtype=np.float64)
+    point, normal = (np.asarray(v, dtype=np.float64) for v in plane)
+    origin_h = float(normal @ (T[:3, 3] - point))
+
+    def up_per_z(px: np.ndarray) -> np.ndarray:
+        return (_rays_per_depth(px, K) @ T[:3, :3].T) @ normal
+
+    source_h = origin_h + depth[sources[:, 0], sources[:, 1]] * up_per_z(sources)
+    hole_up = up_per_z(holes)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z_level = (source_h - origin_h) / hole_up
+    # only a ray falling towards the plane (hole_up < 0) reaches the height behind
+    deeper = (hole_up < 0) & np.isfinite(z_level) & (z_level > z_nearest)
+    return np.where(deeper, z_level, z_nearest)

@@ -193,13 +193,21 @@ class Options(StageOptions):
                           "hull across the occluder, where another object is seen standing "
                           "between the parts (see geometry/completion.py).")
     completion_fill_holes_px: float = Field(
-        0.0, ge=0, description="Before completing, give each mask pixel without a depth "
-                               "reading within this many pixels of a kept point that "
-                               "point's depth (dark, glossy and thin surfaces, the band "
-                               "along depth edges), so the footprint covers the mask "
-                               "(try 6). Off by default: on the realistic set it raised "
-                               "init's IoU but physopt moved the larger shapes apart "
-                               "(docs/completion.md). 0 = off (see geometry/mask_holes.py).")
+        6.0, ge=0, description="Before completing, give each mask pixel without a depth "
+                               "reading within this many pixels of a kept point a point on "
+                               "its ray (completion_fill_holes_rule says where), so the "
+                               "footprint covers the mask where the sensor read nothing "
+                               "(dark, glossy and thin surfaces, the band along depth edges, "
+                               "the grazing top and back of round objects). 0 = off, the "
+                               "default before 2026-11-27 (see geometry/mask_holes.py, "
+                               "docs/completion.md).")
+    completion_fill_holes_rule: Literal["depth", "height"] = Field(
+        "height", description="With completion_fill_holes_px: 'depth' gives an unread pixel "
+                              "its nearest kept point's depth; 'height' does too, unless its "
+                              "ray passes above that point there: then it takes the depth "
+                              "where the ray comes down to the point's height above the "
+                              "table (the grazing top and back of a round object; see "
+                              "geometry/mask_holes.py).")
     completion_carve: bool = Field(
         True, description="Carve a completed object against the depth image: no material "
                           "where the camera saw past it (see geometry/carving.py).")
@@ -491,7 +499,10 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
         pts, pix = pts[keep], pix[keep]
     filled, filled_pix = fill_mask_holes(own, scene.depth_m, pix, cam.K,
                                          cam.world_from_camera, o.completion_fill_holes_px,
-                                         others=other_masks)
+                                         others=other_masks,
+                                         plane=((plane.point, plane.normal)
+                                                if o.completion_fill_holes_rule == "height"
+                                                else None))
     table = (plane.point, plane.normal) if o.completion_carve_table else None
     view = (carve_view(cam.K, cam.world_from_camera, scene.depth_m, pix, plane=table)
             if o.completion_carve else None)
