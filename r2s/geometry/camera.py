@@ -47,14 +47,22 @@ def backproject(depth_m: np.ndarray, K: np.ndarray, world_from_camera: np.ndarra
     if mask is not None:
         valid &= np.asarray(mask, dtype=bool)
     rows, cols = np.nonzero(valid)
+    pixels = np.stack([rows, cols], axis=1).astype(np.int64)
     z = depth[rows, cols]
-    k = np.asarray(K, dtype=np.float64)
-    x = (cols - k[0, 2] - k[0, 1] * (rows - k[1, 2]) / k[1, 1]) / k[0, 0] * z
-    y = (rows - k[1, 2]) / k[1, 1] * z
-    points = transform_points(world_from_camera, np.stack([x, y, z], axis=1))
+    points = transform_points(world_from_camera, rays_per_depth(pixels, K) * z[:, None])
     if return_pixels:
-        return points, np.stack([rows, cols], axis=1).astype(np.int64)
+        return points, pixels
     return points
+
+
+def rays_per_depth(pixels: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(N, 3) camera-frame ray through each ``(row, col)`` pixel of ``pixels`` (N, 2),
+    scaled to camera z = 1: the camera point at depth z is ``z * ray``."""
+    k = np.asarray(K, dtype=np.float64)
+    rows, cols = pixels[:, 0], pixels[:, 1]
+    x = (cols - k[0, 2] - k[0, 1] * (rows - k[1, 2]) / k[1, 1]) / k[0, 0]
+    y = (rows - k[1, 2]) / k[1, 1]
+    return np.stack([x, y, np.ones(len(x))], axis=1)
 
 
 def project(points_world: np.ndarray, K: np.ndarray, world_from_camera: np.ndarray

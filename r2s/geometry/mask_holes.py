@@ -31,7 +31,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from r2s.geometry.camera import backproject
+from r2s.geometry.camera import backproject, rays_per_depth
 
 FILL_RADIUS_PX = 6
 """Default reach of a kept reading into the empty mask pixels around it (pixels)."""
@@ -93,15 +93,6 @@ def fill_mask_holes(mask: np.ndarray, depth_m: np.ndarray, kept_pixels: np.ndarr
     return backproject(filled, K, world_from_camera, return_pixels=True)
 
 
-def _rays_per_depth(pixels: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """(N, 3) camera-frame ray of each ``(row, col)`` pixel, scaled to camera z = 1."""
-    k = np.asarray(K, dtype=np.float64)
-    rows, cols = pixels[:, 0].astype(np.float64), pixels[:, 1].astype(np.float64)
-    x = (cols - k[0, 2] - k[0, 1] * (rows - k[1, 2]) / k[1, 1]) / k[0, 0]
-    y = (rows - k[1, 2]) / k[1, 1]
-    return np.stack([x, y, np.ones_like(x)], axis=1)
-
-
 def _continued_at_height(z_nearest: np.ndarray, holes: np.ndarray, sources: np.ndarray,
                          depth: np.ndarray, K: np.ndarray, world_from_camera: np.ndarray,
                          plane: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
@@ -115,7 +106,7 @@ def _continued_at_height(z_nearest: np.ndarray, holes: np.ndarray, sources: np.n
     origin_h = float(normal @ (T[:3, 3] - point))
 
     def up_per_z(px: np.ndarray) -> np.ndarray:
-        return (_rays_per_depth(px, K) @ T[:3, :3].T) @ normal
+        return (rays_per_depth(px, K) @ T[:3, :3].T) @ normal
 
     source_h = origin_h + depth[sources[:, 0], sources[:, 1]] * up_per_z(sources)
     hole_up = up_per_z(holes)
