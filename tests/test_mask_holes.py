@@ -143,8 +143,8 @@ def test_height_rule_puts_the_unread_far_edge_of_a_level_top_on_it(elevation_deg
     depth[90:98, 120:200] = np.nan     # far edge: the top rows of the image
     depth[146:150, 120:200] = np.nan   # near edge: the bottom rows
     kept = np.argwhere(np.isfinite(depth))
-    plane = (np.zeros(3), np.array([0.0, 0.0, 1.0]))
-    by_height, px = fill_mask_holes(mask, depth, kept, K, camera, radius_px=8, plane=plane)
+    by_height, px = fill_mask_holes(mask, depth, kept, K, camera, radius_px=8,
+                                    up=np.array([0.0, 0.0, 1.0]))
     by_depth, px_d = fill_mask_holes(mask, depth, kept, K, camera, radius_px=8)
     assert np.array_equal(px, px_d)
     far, near = px[:, 0] < 98, px[:, 0] >= 146

@@ -12,9 +12,9 @@ without depth is not guessed. Nor is a pixel within ``neighbour_gap_px`` of anot
 object's mask: a segmenter's mask bleeds onto a touching neighbour, whose edge pixels read
 no depth as often as any, and filling them would grow the object into its neighbour.
 
-With the support plane given (``plane``), a pixel whose ray passes *above* its nearest
-reading at that reading's depth takes the depth where the ray comes down to the reading's
-height above the plane instead: the surface continues behind at the same height. That is
+With the support plane's up direction given (``up``), a pixel whose ray passes *above*
+its nearest reading at that reading's depth takes the depth where the ray comes down to
+the reading's height above the plane instead: the surface continues behind at the same height. That is
 the top of a silhouette seen obliquely: the grazing top and back of a ball, a can or a
 bottle read no depth, and the nearest reading's depth would make the object taller
 where it is deeper. A pixel whose ray passes below (the lower outline) or level keeps the
@@ -45,7 +45,7 @@ def fill_mask_holes(mask: np.ndarray, depth_m: np.ndarray, kept_pixels: np.ndarr
                     K: np.ndarray, world_from_camera: np.ndarray,
                     radius_px: float = FILL_RADIUS_PX, others: np.ndarray | None = None,
                     neighbour_gap_px: float = NEIGHBOUR_GAP_PX,
-                    plane: tuple[np.ndarray, np.ndarray] | None = None
+                    up: np.ndarray | None = None
                     ) -> tuple[np.ndarray, np.ndarray]:
     """Points for the object's mask pixels that have no depth reading.
 
@@ -60,10 +60,10 @@ def fill_mask_holes(mask: np.ndarray, depth_m: np.ndarray, kept_pixels: np.ndarr
         depth it takes; <= 0 fills nothing.
     others : (H, W) bool, the other objects' masks, or None; empty pixels within
         ``neighbour_gap_px`` (Euclidean) of them are not filled.
-    plane : ``(point, unit normal)`` of the support plane (world, metres; the normal points
-        up, towards the camera's side), or None. Given, a pixel whose ray at its nearest
-        reading's depth lies above that reading's height takes the (larger) depth where
-        the ray reaches that height (see the module's docstring).
+    up : (3,) unit normal of the support plane (world frame, pointing up, towards the
+        camera's side), or None. Given, a pixel whose ray at its nearest reading's depth
+        lies above that reading's height takes the (larger) depth where the ray reaches
+        that height (see the module's docstring). Heights need only the plane's direction.
 
     Returns
     -------
@@ -86,32 +86,30 @@ def fill_mask_holes(mask: np.ndarray, depth_m: np.ndarray, kept_pixels: np.ndarr
     reached = np.isfinite(dist)
     holes, nearest = holes[reached], nearest[reached]
     z = depth[kept[nearest, 0], kept[nearest, 1]]
-    if plane is not None:
-        z = _continued_at_height(z, holes, kept[nearest], depth, K, world_from_camera, plane)
+    if up is not None:
+        z = _continued_at_height(z, holes, kept[nearest], K, world_from_camera, up)
     filled = np.zeros_like(depth)
     filled[holes[:, 0], holes[:, 1]] = z
     return backproject(filled, K, world_from_camera, return_pixels=True)
 
 
 def _continued_at_height(z_nearest: np.ndarray, holes: np.ndarray, sources: np.ndarray,
-                         depth: np.ndarray, K: np.ndarray, world_from_camera: np.ndarray,
-                         plane: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+                         K: np.ndarray, world_from_camera: np.ndarray, up: np.ndarray
+                         ) -> np.ndarray:
     """(N,) depth (camera z, m) of each hole: ``max(z_nearest, z at the source's height)``.
 
-    ``holes`` and ``sources`` are (N, 2) ``(row, col)``: each hole and the kept pixel it
-    takes its depth from. The height of a world point is ``normal . (x - point)``.
+    ``holes`` and ``sources`` are (N, 2) ``(row, col)``: each hole and the kept pixel whose
+    depth ``z_nearest`` (N,) it takes. A point at depth z on pixel p's ray lies
+    ``z * up . ray(p)`` above the camera (``ray`` in the world frame, camera z = 1), so the
+    hole's ray reaches the source's height at ``z_nearest * up . ray(source) / up . ray(hole)``;
+    the plane's offset cancels.
     """
-    T = np.asarray(world_from_camera, dtype=np.float64)
-    point, normal = (np.asarray(v, dtype=np.float64) for v in plane)
-    origin_h = float(normal @ (T[:3, 3] - point))
-
-    def up_per_z(px: np.ndarray) -> np.ndarray:
-        return (rays_per_depth(px, K) @ T[:3, :3].T) @ normal
-
-    source_h = origin_h + depth[sources[:, 0], sources[:, 1]] * up_per_z(sources)
-    hole_up = up_per_z(holes)
+    R = np.asarray(world_from_camera, dtype=np.float64)[:3, :3]
+    up = np.asarray(up, dtype=np.float64)
+    source_up = (rays_per_depth(sources, K) @ R.T) @ up
+    hole_up = (rays_per_depth(holes, K) @ R.T) @ up
     with np.errstate(divide="ignore", invalid="ignore"):
-        z_level = (source_h - origin_h) / hole_up
+        z_level = z_nearest * source_up / hole_up
     # only a ray falling towards the plane (hole_up < 0) reaches the height behind
     deeper = (hole_up < 0) & np.isfinite(z_level) & (z_level > z_nearest)
     return np.where(deeper, z_level, z_nearest)

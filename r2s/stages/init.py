@@ -500,9 +500,9 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
     filled, filled_pix = fill_mask_holes(own, scene.depth_m, pix, cam.K,
                                          cam.world_from_camera, o.completion_fill_holes_px,
                                          others=other_masks,
-                                         plane=((plane.point, plane.normal)
-                                                if o.completion_fill_holes_rule == "height"
-                                                else None))
+                                         up=(plane.normal
+                                             if o.completion_fill_holes_rule == "height"
+                                             else None))
     table = (plane.point, plane.normal) if o.completion_carve_table else None
     view = (carve_view(cam.K, cam.world_from_camera, scene.depth_m, pix, plane=table)
             if o.completion_carve else None)
