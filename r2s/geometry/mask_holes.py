@@ -14,8 +14,8 @@ no depth as often as any, and filling them would grow the object into its neighb
 
 With the support plane's up direction given (``up``), a pixel whose ray passes *above*
 its nearest reading at that reading's depth takes the depth where the ray comes down to
-the reading's height above the plane instead: the surface continues behind at the same height. That is
-the top of a silhouette seen obliquely: the grazing top and back of a ball, a can or a
+the reading's height above the plane instead: the surface continues behind at the same
+height. That is the top of a silhouette seen obliquely: the grazing top and back of a ball, a can or a
 bottle read no depth, and the nearest reading's depth would make the object taller
 where it is deeper. A pixel whose ray passes below (the lower outline) or level keeps the
 nearest reading's depth, so the rule only ever moves a point away from the camera, never
@@ -101,8 +101,8 @@ def _continued_at_height(z_nearest: np.ndarray, holes: np.ndarray, sources: np.n
     ``holes`` and ``sources`` are (N, 2) ``(row, col)``: each hole and the kept pixel whose
     depth ``z_nearest`` (N,) it takes. A point at depth z on pixel p's ray lies
     ``z * up . ray(p)`` above the camera (``ray`` in the world frame, camera z = 1), so the
-    hole's ray reaches the source's height at ``z_nearest * up . ray(source) / up . ray(hole)``;
-    the plane's offset cancels.
+    hole's ray reaches the source's height at
+    ``z_nearest * up . ray(source) / up . ray(hole)``; the plane's offset cancels.
     """
     R = np.asarray(world_from_camera, dtype=np.float64)[:3, :3]
     up = np.asarray(up, dtype=np.float64)
