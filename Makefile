@@ -1,6 +1,7 @@
 # r2s: setup, demo, tests, benchmarks and dataset batches.
 #   make demo                       set up (first time) and run the pipeline on the sample scene
-#   make test                       set up (first time) and run the test suite
+#   make test                       set up (first time) and run the test suite (one worker
+#                                   per core up to 4, each test file on one worker)
 #   make batch DATA=bench/ycb JOBS=4  run every scene under DATA (any depth, resumable) with
 #                                   `r2s batch`; writes DATA/report.md and DATA/report.csv
 SHELL := /bin/bash
@@ -26,10 +27,10 @@ demo: $(STAMP)
 	$(R2S) run $(DEMO_DIR)
 
 test: $(STAMP)
-	$(PY) -m pytest -q -p no:cacheprovider
+	$(PY) -m pytest -q -p no:cacheprovider -n auto --maxprocesses 4 --dist loadfile
 
 test-all: $(STAMP)
-	$(PY) -m pytest -q -m "" -p no:cacheprovider
+	$(PY) -m pytest -q -m "" -p no:cacheprovider -n auto --maxprocesses 4 --dist loadfile
 
 bench: $(STAMP)
 	$(PY) scripts/bench_baseline.py
