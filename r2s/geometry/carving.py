@@ -14,6 +14,15 @@ unknown: hidden parts may go there, as they may behind nearer
 objects (the reading is nearer than the point) and below the visible surface along the
 ray.
 
+Where the sensor read nothing, the instance masks still say what the camera saw: a pixel
+that no mask covers (``masks`` given; a mask's own holes and notches narrower than about
+``2 * close_px`` count as covered, and nothing within the object's rim band is tested) showed
+the background, so a point of the object there would have been seen and segmented. Such
+a point is carved unless a reading nearer than it (an unsegmented thing in front) could
+hide it. Stereo sensors leave a band without depth beside every object (the projector's
+shadow on the far side of the baseline) and dark or glossy tables read nothing; without
+this test a completed shape spills into those bands.
+
 The margin grows with depth like the axial noise of structured-light and stereo sensors:
 ``margin_m + margin_quadratic_m * (z / 1 m)^2``.
 
@@ -44,6 +53,7 @@ OWN_RIM_PX = 1
 HOLE_FILL_PX = 2
 TABLE_TOLERANCE_M = 0.003
 TABLE_MARGIN_M = 0.002
+MASK_CLOSE_PX = 2
 
 
 @dataclass(frozen=True)
@@ -54,7 +64,8 @@ class CarveView:
     the camera z axis, NaN / <= 0 = no reading; exempt : (H, W) bool, the mask's uncertain
     rim, where nothing is carved; own : (H, W) bool, the kept pixels (what hides a point
     from the camera there is the object itself); margin_m, margin_quadratic_m : see the
-    module docstring.
+    module docstring; background : (H, W) bool or None, pixels the masks call background,
+    outside the rim (the silhouette test of the module docstring).
     """
 
     K: np.ndarray
@@ -66,6 +77,7 @@ class CarveView:
     margin_quadratic_m: float = CARVE_MARGIN_QUADRATIC_M
     table_depth_m: Optional[np.ndarray] = None
     table_margin_m: float = TABLE_MARGIN_M
+    background: Optional[np.ndarray] = None
 
 
 def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray,
@@ -74,11 +86,14 @@ def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray
                margin_quadratic_m: float = CARVE_MARGIN_QUADRATIC_M,
                plane: Optional[tuple[np.ndarray, np.ndarray]] = None,
                table_tolerance_m: float = TABLE_TOLERANCE_M,
-               table_margin_m: float = TABLE_MARGIN_M) -> CarveView:
+               table_margin_m: float = TABLE_MARGIN_M,
+               masks: Optional[np.ndarray] = None,
+               close_px: int = MASK_CLOSE_PX) -> CarveView:
     """A :class:`CarveView` for an object whose kept observations are ``own_pixels``
     ((N, 2) int (row, col)): its rim (``band_px`` outside them, ``rim_px`` inside) is
     exempt from carving; holes are filled as the module docstring says. ``plane``
-    (point (3,), unit normal (3,), world frame) enables the table test of the module
+    (point (3,), unit normal (3,), world frame) enables the table test and ``masks``
+    ((H, W) int instance ids, 0 = background) the silhouette test of the module
     docstring."""
     depth = fill_edge_holes(np.asarray(depth_m, dtype=np.float64), hole_fill_px)
     own = np.zeros(depth.shape, dtype=bool)
@@ -94,11 +109,31 @@ def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray
         with np.errstate(invalid="ignore"):
             sees_table = np.abs(raw - plane_z) < tol
         table = np.where(sees_table & ~grown, plane_z, np.nan)
+    background = None if masks is None else ~covered_by_masks(masks, close_px) & ~grown
     return CarveView(K=np.asarray(K, dtype=np.float64),
                      world_from_camera=np.asarray(world_from_camera, dtype=np.float64),
                      depth_m=depth, exempt=grown & ~inner, own=own, margin_m=float(margin_m),
                      margin_quadratic_m=float(margin_quadratic_m), table_depth_m=table,
-                     table_margin_m=float(table_margin_m))
+                     table_margin_m=float(table_margin_m), background=background)
+
+
+def covered_by_masks(masks: np.ndarray, close_px: int = MASK_CLOSE_PX) -> np.ndarray:
+    """(H, W) bool: pixels some instance of ``masks`` ((H, W) int ids, 0 = background)
+    covers, each instance's holes and gaps narrower than about ``2 * close_px`` filled (a
+    segmenter's holes and notches). Background enclosed by *several* instances (the
+    table between touching objects) stays background."""
+    labels = np.asarray(masks)
+    covered = labels > 0
+    pad = max(int(close_px), 0) + 1
+    for oid in np.unique(labels[covered]):
+        rows, cols = np.nonzero(labels == oid)
+        r0, r1 = max(rows.min() - pad, 0), min(rows.max() + pad + 1, labels.shape[0])
+        c0, c1 = max(cols.min() - pad, 0), min(cols.max() + pad + 1, labels.shape[1])
+        one = np.pad(labels[r0:r1, c0:c1] == oid, pad)
+        if close_px > 0:
+            one = ndimage.binary_closing(one, iterations=int(close_px))
+        covered[r0:r1, c0:c1] |= ndimage.binary_fill_holes(one)[pad:-pad, pad:-pad]
+    return covered
 
 
 def plane_depth_m(K: np.ndarray, world_from_camera: np.ndarray, plane_point: np.ndarray,
@@ -165,4 +200,8 @@ def seen_free(view: CarveView, points_world: np.ndarray) -> np.ndarray:
         if view.table_depth_m is not None:
             table = view.table_depth_m[row, col]
             free |= ok & np.isfinite(table) & (z < table - view.table_margin_m)
+        if view.background is not None:
+            read = ok & np.isfinite(d) & (d > 0)
+            near = view.margin_m + view.margin_quadratic_m * np.square(np.where(read, d, 0.0))
+            free |= ok & view.background[row, col] & ~(read & (d < z - near))
     return free

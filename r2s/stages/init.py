@@ -211,6 +211,16 @@ class Options(StageOptions):
     completion_carve: bool = Field(
         True, description="Carve a completed object against the depth image: no material "
                           "where the camera saw past it (see geometry/carving.py).")
+    completion_carve_band_px: int = Field(
+        2, ge=0, description="Carving spares the mask's uncertain rim: this many pixels "
+                             "outside the object's kept pixels, where mixed readings and "
+                             "mask bleed put the reading on the wrong surface (see "
+                             "geometry/carving.py).")
+    completion_carve_silhouette: bool = Field(
+        True, description="Carve a completed object where the sensor read no depth but no "
+                          "instance mask covers the pixel (the camera saw background there: "
+                          "the stereo shadow beside objects, a dark table; see "
+                          "geometry/carving.py).")
     completion_carve_table: bool = Field(
         True, description="Carve against the fitted support plane where the camera sees the "
                           "table (a 2 mm margin instead of the sensor's; see "
@@ -504,7 +514,9 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
                                              if o.completion_fill_holes_rule == "height"
                                              else None))
     table = (plane.point, plane.normal) if o.completion_carve_table else None
-    view = (carve_view(cam.K, cam.world_from_camera, scene.depth_m, pix, plane=table)
+    view = (carve_view(cam.K, cam.world_from_camera, scene.depth_m, pix, plane=table,
+                       band_px=o.completion_carve_band_px,
+                       masks=scene.masks if o.completion_carve_silhouette else None)
             if o.completion_carve else None)
     try:
         both_pix = np.concatenate([pix, filled_pix])
