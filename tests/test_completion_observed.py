@@ -245,6 +245,27 @@ def test_object_behind_a_nearer_one_continues_behind_it_when_asked():
     assert _free_space_violation(swept, depth, masks, camera, 1)[0] <= 0.02
 
 
+def _lying_can_view():
+    """(camera, depth (H, W) with 1.5 mm noise, masks) of a can (r = 40 mm, 120 mm long)
+    lying on its side on the table, seen from 30 degrees above it."""
+    can = trimesh.creation.cylinder(0.04, 0.12, sections=96)
+    can_pose = pose([0.0, 0.0, 0.04], rotation([1, 0, 0], 90.0))
+    camera = _oblique(30.0, -90.0, 0.55, target=(0.0, 0.0, 0.04))
+    _, depth, masks = render_view([SynthObject(1, can, can_pose)], K, camera, W, H)
+    return camera, depth + np.random.default_rng(1).normal(0, 0.0015, depth.shape), masks
+
+
+def _spill_and_iou(world: trimesh.Trimesh, masks: np.ndarray, camera: np.ndarray
+                   ) -> tuple[float, float]:
+    """(pixels the completion ``world`` covers outside a 2-pixel band around object 1's
+    mask, over the mask area; its silhouette IoU against that mask)."""
+    _, hit, _ = raycast_view([world], K, camera, W, H)
+    drawn, mask = hit == 0, masks == 1
+    band = ndimage.binary_dilation(mask, iterations=2)
+    return ((drawn & ~band).sum() / mask.sum(),
+            (drawn & mask).sum() / (drawn | mask).sum())
+
+
 def test_lying_cylinder_leaves_no_skirt_on_the_visible_table():
     """A can lying on its side (r = 40 mm), seen from 30 degrees with 1.5 mm depth noise:
     the walls extruded from its widest outline down to the table hide table in front of
@@ -253,21 +274,10 @@ def test_lying_cylinder_leaves_no_skirt_on_the_visible_table():
     the mask area on visible table outside a 2-pixel band (measured 0.8 %), against >= 2 %
     with the sensor margin alone (measured 2.9 %), and
     its silhouette IoU against the true mask is >= 0.9."""
-    can = trimesh.creation.cylinder(0.04, 0.12, sections=96)
-    can_pose = pose([0.0, 0.0, 0.04], rotation([1, 0, 0], 90.0) @ rotation([0, 0, 1], 0.0))
-    camera = _oblique(30.0, -90.0, 0.55, target=(0.0, 0.0, 0.04))
-    _, depth, masks = render_view([SynthObject(1, can, can_pose)], K, camera, W, H)
-    depth = depth + np.random.default_rng(1).normal(0, 0.0015, depth.shape)
-
-    def skirt_and_iou(world):
-        _, hit, _ = raycast_view([world], K, camera, W, H)
-        drawn, mask = hit == 0, masks == 1
-        band = ndimage.binary_dilation(mask, iterations=2)
-        skirt = (drawn & ~band & (masks == 0)).sum() / mask.sum()
-        return skirt, (drawn & mask).sum() / (drawn | mask).sum()
-
-    skirt, iou = skirt_and_iou(_complete(depth, masks, camera, 1, table=True))
-    skirt_sensor, _ = skirt_and_iou(_complete(depth, masks, camera, 1, table=False))
+    camera, depth, masks = _lying_can_view()
+    skirt, iou = _spill_and_iou(_complete(depth, masks, camera, 1, table=True), masks, camera)
+    skirt_sensor, _ = _spill_and_iou(_complete(depth, masks, camera, 1, table=False), masks,
+                                     camera)
     assert skirt <= 0.012, skirt
     assert iou >= 0.9, iou
     assert skirt_sensor >= 0.02, skirt_sensor
@@ -282,21 +292,12 @@ def test_a_table_that_reads_no_depth_is_carved_by_the_masks():
     the table that reads depth) and its IoU with the true mask is >= 0.94 (measured
     0.948); without them the walls extruded from the can's widest outline cover >= 3 %
     (measured 4.3 %, IoU 0.921)."""
-    can = trimesh.creation.cylinder(0.04, 0.12, sections=96)
-    can_pose = pose([0.0, 0.0, 0.04], rotation([1, 0, 0], 90.0))
-    camera = _oblique(30.0, -90.0, 0.55, target=(0.0, 0.0, 0.04))
-    _, depth, masks = render_view([SynthObject(1, can, can_pose)], K, camera, W, H)
-    depth = depth + np.random.default_rng(1).normal(0, 0.0015, depth.shape)
+    camera, depth, masks = _lying_can_view()
     depth[masks == 0] = np.nan
-
-    def spill_and_iou(world):
-        _, hit, _ = raycast_view([world], K, camera, W, H)
-        drawn, mask = hit == 0, masks == 1
-        band = ndimage.binary_dilation(mask, iterations=2)
-        return (drawn & ~band).sum() / mask.sum(), (drawn & mask).sum() / (drawn | mask).sum()
-
-    spill, iou = spill_and_iou(_complete(depth, masks, camera, 1, table=True, silhouette=True))
-    spill_depth_only, _ = spill_and_iou(_complete(depth, masks, camera, 1, table=True))
+    spill, iou = _spill_and_iou(_complete(depth, masks, camera, 1, table=True, silhouette=True),
+                                masks, camera)
+    spill_depth_only, _ = _spill_and_iou(_complete(depth, masks, camera, 1, table=True), masks,
+                                         camera)
     assert spill <= 0.02, spill
     assert iou >= 0.94, iou
     assert spill_depth_only >= 0.03, spill_depth_only
