@@ -15,7 +15,7 @@ from scipy import ndimage
 
 from helpers_init import SynthObject, pose, render_view, rotation
 from r2s.geometry.camera import backproject, intrinsics, look_at
-from r2s.geometry.carving import carve_view, seen_free
+from r2s.geometry.carving import carve_view, covered_by_masks, seen_free
 from r2s.geometry.completion import complete_from_points
 from r2s.geometry.point_cleanup import object_point_mask
 from r2s.geometry.raycast import raycast_view
@@ -305,15 +305,18 @@ def test_a_table_that_reads_no_depth_is_carved_by_the_masks():
 
 def test_the_masks_carve_only_background_nothing_could_hide():
     """carve_view's silhouette test on a hand-made view whose depth reads nothing but one
-    nearer patch: a point seen on background pixels is free; one on the object's own
-    mask, in a hole of its mask, on another object's mask or on the rim band is not; one
-    behind a nearer reading on background (something unsegmented in front) is not."""
+    nearer patch: a point seen on background pixels is free, also on table enclosed by
+    three objects; one on the object's own mask, in a hole of its mask (4 px from the mask,
+    outside the rim), on another object's mask or on the rim band is not; one behind a
+    nearer reading on background (something unsegmented in front) is not."""
     h, w = 60, 80
     k = np.array([[100.0, 0, 40], [0, 100.0, 30], [0, 0, 1]])
     masks = np.zeros((h, w), dtype=np.int32)
     masks[20:40, 20:40] = 1
-    masks[28:32, 28:32] = 0          # a segmenter's hole inside object 1
-    masks[20:40, 60:70] = 2
+    masks[26:34, 26:34] = 0          # a segmenter's hole inside object 1
+    masks[20:40, 48:70] = 2
+    masks[14:20, 36:52] = 3          # object 3 closes the gap between 1 and 2 above...
+    masks[40:46, 36:52] = 3          # ... and below: the table between them is enclosed
     depth = np.full((h, w), np.nan)
     depth[5:10, 5:10] = 0.5          # an unsegmented thing at 0.5 m
     view = carve_view(k, np.eye(4), depth, np.argwhere(masks == 1), masks=masks)
@@ -323,13 +326,16 @@ def test_the_masks_carve_only_background_nothing_could_hide():
         return bool(seen_free(view, point)[0])
 
     assert free(50, 10)              # background, no reading
-    assert free(45, 30)              # background 5 px below object 1
+    assert free(46, 30)              # background 7 px below object 1
+    assert free(30, 44)              # table enclosed by objects 1, 2 and 3
     assert not free(30, 25)          # object 1's own mask
     assert not free(30, 30)          # the hole in object 1's mask
-    assert not free(30, 65)          # object 2's mask
-    assert not free(41, 30)          # the rim band (1 px outside object 1)
+    assert not free(30, 60)          # object 2's mask
+    assert not free(41, 30)          # the rim band (2 px outside object 1)
     assert not free(7, 7, z=1.0)     # behind the unsegmented reading at 0.5 m
     assert free(7, 7, z=0.3)         # in front of it
+    covered = covered_by_masks(masks)
+    assert covered[30, 30] and not covered[30, 44] and not covered[46, 30]
     without = carve_view(k, np.eye(4), depth, np.argwhere(masks == 1))
     assert not seen_free(without, np.array([[(10 - 40) / 100.0, 20 / 100.0, 1.0]]))[0]
 
