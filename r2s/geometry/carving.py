@@ -38,6 +38,7 @@ outline down to the table hide table the camera saw.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Optional
 
@@ -109,7 +110,7 @@ def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray
         with np.errstate(invalid="ignore"):
             sees_table = np.abs(raw - plane_z) < tol
         table = np.where(sees_table & ~grown, plane_z, np.nan)
-    background = None if masks is None else ~covered_by_masks(masks, close_px) & ~grown
+    background = None if masks is None else ~_covered_once(masks, close_px) & ~grown
     return CarveView(K=np.asarray(K, dtype=np.float64),
                      world_from_camera=np.asarray(world_from_camera, dtype=np.float64),
                      depth_m=depth, exempt=grown & ~inner, own=own, margin_m=float(margin_m),
@@ -133,6 +134,20 @@ def covered_by_masks(masks: np.ndarray, close_px: int = MASK_CLOSE_PX) -> np.nda
         if close_px > 0:
             one = ndimage.binary_closing(one, iterations=int(close_px))
         covered[r0:r1, c0:c1] |= ndimage.binary_fill_holes(one)[pad:-pad, pad:-pad]
+    return covered
+
+
+def _covered_once(masks: np.ndarray, close_px: int) -> np.ndarray:
+    """:func:`covered_by_masks`, computed once per label image: init builds a view for
+    every object of a scene from the same masks."""
+    labels = np.ascontiguousarray(masks)
+    return _covered_cached(labels.tobytes(), labels.shape, labels.dtype.str, int(close_px))
+
+
+@functools.lru_cache(maxsize=2)
+def _covered_cached(data: bytes, shape: tuple, dtype: str, close_px: int) -> np.ndarray:
+    covered = covered_by_masks(np.frombuffer(data, dtype=dtype).reshape(shape), close_px)
+    covered.setflags(write=False)
     return covered
 
 
@@ -193,15 +208,13 @@ def hidden_by_other(view: CarveView, points_world: np.ndarray) -> np.ndarray:
 def seen_free(view: CarveView, points_world: np.ndarray) -> np.ndarray:
     """(N,) bool: which world points (N, 3) the camera saw past (free space)."""
     ok, row, col, z, d = _lookup(view, points_world)
-    valid = ok & np.isfinite(d) & (d > 0) & ~view.exempt[row, col]
-    margin = view.margin_m + view.margin_quadratic_m * np.square(np.where(valid, d, 0.0))
+    read = ok & np.isfinite(d) & (d > 0)
+    margin = view.margin_m + view.margin_quadratic_m * np.square(np.where(read, d, 0.0))
     with np.errstate(invalid="ignore"):
-        free = valid & (z < d - margin)
+        free = read & ~view.exempt[row, col] & (z < d - margin)
         if view.table_depth_m is not None:
             table = view.table_depth_m[row, col]
             free |= ok & np.isfinite(table) & (z < table - view.table_margin_m)
         if view.background is not None:
-            read = ok & np.isfinite(d) & (d > 0)
-            near = view.margin_m + view.margin_quadratic_m * np.square(np.where(read, d, 0.0))
-            free |= ok & view.background[row, col] & ~(read & (d < z - near))
+            free |= ok & view.background[row, col] & ~(read & (d < z - margin))
     return free
