@@ -39,12 +39,13 @@ def _drift_and_steps(body: trimesh.Trimesh, pose: np.ndarray, stop_at_rest: bool
 
 
 def test_a_resting_box_stops_early_with_the_full_rollouts_drift():
-    """A 60 mm cube set on the table: the early stop ends well before 3 s (720 steps) and
-    reports the full rollout's drift within 0.2 mm and 0.1 deg."""
+    """A 60 mm cube set on the table: the early stop ends well before 3 s (720 steps; the
+    count includes the rest probe's nudge, 240 steps) and reports the full rollout's drift
+    within 0.2 mm and 0.1 deg."""
     box = trimesh.creation.box([0.06] * 3)
     (t_full, r_full), n_full = _drift_and_steps(box, _pose(0.03), stop_at_rest=False)
     (t_early, r_early), n_early = _drift_and_steps(box, _pose(0.03), stop_at_rest=True)
-    assert n_full == 720 and n_early < 360
+    assert n_full == 720 and n_early < 360 + 240
     assert abs(t_early - t_full) < 2e-4 and abs(r_early - r_full) < 0.1
     assert t_full < 0.002
 
@@ -59,3 +60,18 @@ def test_a_toppling_slab_is_not_cut_short():
     (t_early, r_early), n_early = _drift_and_steps(slab, _pose(z, 25.0), stop_at_rest=True)
     assert 60.0 < r_full < 95.0 and abs(r_early - r_full) < 1.0
     assert abs(t_early - t_full) < 1e-3 and n_early > 120
+
+
+def test_a_cube_balanced_on_its_edge_is_not_taken_for_at_rest():
+    """A 50 mm cube turned 45 deg onto an edge, its centre of mass exactly above it: the
+    first 0.5 s are still (an unstable equilibrium), then numerical noise tips it onto a
+    face (45 deg). The nudge probe sees the equilibrium is unstable, so the early-stopping
+    run is followed to the end and reports the full rollout's drift exactly (the probe's
+    state is restored); without the probe it would report about 0 deg."""
+    cube = trimesh.creation.box([0.05] * 3)
+    pose = _pose(0.025 * np.sqrt(2.0), 45.0)
+    (t_full, r_full), _ = _drift_and_steps(cube, pose, stop_at_rest=False)
+    (t_early, r_early), n_early = _drift_and_steps(cube, pose, stop_at_rest=True)
+    assert abs(r_full - 45.0) < 1.0
+    assert r_early == r_full and t_early == t_full
+    assert n_early > 720

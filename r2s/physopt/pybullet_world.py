@@ -110,6 +110,17 @@ REST_SPIN_RADPS = 2e-3
 """Angular counterpart of ``REST_SPEED_MPS`` (0.57 deg over 5 s, against 2 deg)."""
 REST_WINDOW_S = 0.5
 REST_POLL_STEPS = 12
+PROBE_SPIN_RADPS = 0.02
+"""The nudge of the rest probe (:func:`_rest_survives_nudge`): every body is given this spin
+about a horizontal axis, ten times the rest threshold ``REST_SPIN_RADPS``."""
+PROBE_S = 1.0
+"""How long the nudged scene is followed."""
+PROBE_GROWTH = 3.0
+"""A body whose spin at any poll of the probe exceeds this multiple of the nudge (or whose
+speed exceeds ``PROBE_GROWTH * PROBE_SPIN_RADPS * 0.1 m``) is gaining energy: it sat on an
+unstable equilibrium (a cube balanced on an edge, nudged, spins 1.5 times the nudge after
+40 steps and 14 times after 80). A ball nudged on a plane rolls on at about the nudge's
+spin; a box on its face stops."""
 
 
 def drift(world: World, start: dict[int, np.ndarray], duration_s: float,
@@ -120,7 +131,11 @@ def drift(world: World, start: dict[int, np.ndarray], duration_s: float,
 
     With ``stop_at_rest`` the simulation ends early once every body has stayed below
     ``REST_SPEED_MPS`` and ``REST_SPIN_RADPS`` for ``REST_WINDOW_S`` (polled every
-    ``REST_POLL_STEPS`` steps): the rest of the run could not move anything measurably."""
+    ``REST_POLL_STEPS`` steps) and the rest survives a nudge (:func:`_rest_survives_nudge`):
+    the rest of the run could not move anything measurably. A scene still at an unstable
+    equilibrium (an orange balanced where numerical noise tips it late) is followed for the
+    whole ``duration_s``, like the judge's rollout. The nudge is a probe only: the state is
+    restored after it, so the drift is always that of the unperturbed run."""
     world.set_poses(start)
     steps = int(round(duration_s / time_step_s))
     window = int(round(REST_WINDOW_S / time_step_s))
@@ -130,7 +145,9 @@ def drift(world: World, start: dict[int, np.ndarray], duration_s: float,
         if stop_at_rest and k % REST_POLL_STEPS == 0:
             quiet = quiet + REST_POLL_STEPS if _all_at_rest(world) else 0
             if quiet >= window:
-                break
+                if _rest_survives_nudge(world, time_step_s):
+                    break
+                stop_at_rest = False
     end = world.poses()
     out = {}
     for i, pose in end.items():
@@ -140,10 +157,40 @@ def drift(world: World, start: dict[int, np.ndarray], duration_s: float,
     return out
 
 
+def _rest_survives_nudge(world: World, time_step_s: float) -> bool:
+    """Whether every body at rest stays near rest when nudged: each is given a spin of
+    ``PROBE_SPIN_RADPS`` about a horizontal axis (its own, fixed by its id, so the probe is
+    deterministic) and followed for ``PROBE_S``; a body that at any poll spins
+    ``PROBE_GROWTH`` times faster, or moves faster than ``PROBE_GROWTH`` times the nudge at
+    0.1 m, is gaining energy from gravity: it was balanced on an unstable equilibrium. The
+    world's state is restored before returning."""
+    c = world.client
+    saved = pb.saveState(physicsClientId=c)
+    try:
+        for i, b in world.body_ids.items():
+            a = 0.7 * float(i) + 0.3
+            pb.resetBaseVelocity(b, [0.0, 0.0, 0.0],
+                                 [PROBE_SPIN_RADPS * np.cos(a), PROBE_SPIN_RADPS * np.sin(a), 0.0],
+                                 physicsClientId=c)
+        for k in range(1, int(round(PROBE_S / time_step_s)) + 1):
+            pb.stepSimulation(physicsClientId=c)
+            if k % REST_POLL_STEPS == 0 and not _all_below(
+                    world, PROBE_GROWTH * PROBE_SPIN_RADPS * 0.1, PROBE_GROWTH * PROBE_SPIN_RADPS):
+                return False
+        return True
+    finally:
+        pb.restoreState(saved, physicsClientId=c)
+        pb.removeState(saved, physicsClientId=c)
+
+
 def _all_at_rest(world: World) -> bool:
+    return _all_below(world, REST_SPEED_MPS, REST_SPIN_RADPS)
+
+
+def _all_below(world: World, speed_mps: float, spin_radps: float) -> bool:
     for b in world.body_ids.values():
         lin, ang = pb.getBaseVelocity(b, physicsClientId=world.client)
-        if np.linalg.norm(lin) > REST_SPEED_MPS or np.linalg.norm(ang) > REST_SPIN_RADPS:
+        if np.linalg.norm(lin) > speed_mps or np.linalg.norm(ang) > spin_radps:
             return False
     return True
 
