@@ -137,6 +137,26 @@ def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
     return scene
 
 
+def closest_surface_points(scene, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For (M, 3) points: the closest point on the scene's triangles (M, 3) and that
+    triangle's unit normal (M, 3), as float64."""
+    found = scene.compute_closest_points(_o3d_points(points))
+    closest = found["points"].numpy().astype(np.float64)
+    normal = found["primitive_normals"].numpy().astype(np.float64)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    return closest, normal
+
+
+def first_hit_distance(scene, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """(M,) distance along each unit direction (M, 3) from each origin (M, 3) to the first
+    triangle of the scene it meets (m; inf for none)."""
+    import open3d as o3d
+
+    rays = np.hstack([np.asarray(origins, dtype=np.float32),
+                      np.asarray(directions, dtype=np.float32)])
+    return scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
+
+
 def _o3d_points(points: np.ndarray):
     import open3d as o3d
 
@@ -167,7 +187,9 @@ def winding_number(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
     return out.numpy()
 
 
-def _decimated(mesh: trimesh.Trimesh, max_faces: int) -> tuple[np.ndarray, np.ndarray]:
+def decimated(mesh: trimesh.Trimesh, max_faces: int) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, faces) of ``mesh`` simplified to at most ``max_faces`` faces (quadric
+    decimation; the mesh itself when it has no more)."""
     if len(mesh.faces) <= max_faces:
         return np.asarray(mesh.vertices), np.asarray(mesh.faces)
     import open3d as o3d
@@ -314,7 +336,7 @@ def compute_sdf(mesh: trimesh.Trimesh, resolution: int = 128, padding_m: float |
     else:
         normals = result["primitive_normals"].numpy().astype(np.float64)
         inside_band = np.einsum("ni,ni->n", band_pts - cp_band, normals) < 0.0
-        v, f = _decimated(mesh, winding_max_faces)
+        v, f = decimated(mesh, winding_max_faces)
         inside_far = _component_sign(labels_far, rep_comp, winding_number(v, f, rep_pts))
         # the outer component(s) may reach inside through a hole: there a voxel is inside
         # where it lies behind its closest face and the coarse winding number says so

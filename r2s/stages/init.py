@@ -14,7 +14,12 @@ the observation, both are scored against the view (silhouette IoU with the other
 z-buffered, UCD, free space; geometry/prior_choice.py) and the completion replaces the
 prior only where it is better on all three by calibrated margins, or where the prior of an
 object standing alone on the table rolls away when set down there and the completion rests
-at about the same view score (a warning line says which).
+at about the same view score (a warning line says which). Where the priors kept overlap
+by 5 mm or more somewhere (single-image shapes, wrong where the camera cannot see), each
+overlap goes to the prior whose observed surface is nearer and the other's surface there
+is moved onto the owner's (``prior_yield_hidden_overlap``), and a prior reaching a few
+millimetres below the table has that part moved up onto it (``prior_lift_below_table``;
+geometry/hidden_overlap.py).
 No dynamics here: settling and stability are left for the later stages.
 
 Object frames: a registered prior keeps its own axes, with the origin moved to the centre
@@ -26,7 +31,9 @@ surface), ``scale``, ``observed_points``, ``num_observed_points``; for an object
 prior, ``prior_choice``: ``chosen`` ("prior" or "completion") and the ``prior``'s and the
 ``completion``'s scores (``iou``, ``ucd_mm``, ``free_space``) and, for an object standing alone
 on the table, ``rest_alone``: how far each moved (``moved_mm``) and turned (``turned_deg``)
-when set down there alone.
+when set down there alone; for a prior whose surface was moved out of another prior
+(or the table), ``hidden_overlap``: ``moved_vertices``, ``deepest_mm`` and ``yielded_to``
+(ids) (and ``below_table_vertices``).
 
 Writes ``init/``: ``state.json``, ``meshes/<id>.glb`` (object frame, coloured),
 ``points/<id>.npy`` (the object's observed points, world frame, float32 (N, 3)),
@@ -48,10 +55,11 @@ from scipy import ndimage
 
 from r2s.errors import InputError, StageError
 from r2s.geometry import sanity
-from r2s.geometry.camera import backproject
+from r2s.geometry.camera import backproject, transform_points
 from r2s.geometry.carving import carve_view
 from r2s.geometry.colors import color_mesh_from_image, has_appearance
 from r2s.geometry.completion import complete_from_points
+from r2s.geometry.hidden_overlap import lift_onto_plane, sunk_too_far, yield_hidden_overlaps
 from r2s.geometry.hidden_partition import Claimant, exclusion, overlaps
 from r2s.geometry.free_space import view_constraint
 from r2s.geometry.mask_edges import foreign_rim_pixels
@@ -229,6 +237,17 @@ class Options(StageOptions):
         True, description="Where two completed objects fill the same hidden space, give it "
                           "to the one whose observed surface is nearer (a prior keeps all "
                           "of its inside; see geometry/hidden_partition.py).")
+    prior_yield_hidden_overlap: bool = Field(
+        True, description="In a scene whose registered priors overlap by 5 mm or more "
+                          "somewhere (single-image shapes), give each overlap to the prior "
+                          "whose observed surface is nearer and move the other's surface "
+                          "there onto the owner's (space the camera cannot see: the render "
+                          "does not change, and the later stages need not push the objects "
+                          "apart; see geometry/hidden_overlap.py).")
+    prior_lift_below_table: bool = Field(
+        True, description="In such a scene, also move the part of a prior that reaches at "
+                          "most 5 mm below the table up onto it (deeper is a pose error: "
+                          "geomopt lifts the whole object; see geometry/hidden_overlap.py).")
     completion_rest_on_others: bool = Field(
         True, description="When a completed object is completed again without the hidden "
                           "space others own: in every column where another object's top "
@@ -592,6 +611,44 @@ def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple
         shapes[spec.id] = (mesh, world_from_object, None)
 
 
+def _yield_prior_overlaps(observed: dict, shapes: dict[int, tuple], plane: PlaneFit,
+                          o: Options) -> dict[int, dict]:
+    """Where the registered priors overlap by at least ``SHAPE_ERROR_M`` somewhere (their
+    hidden sides are single-image guesses), move, in place in ``shapes``, each prior's
+    surface out of the table (``prior_lift_below_table``) and out of the priors that own
+    the space it overlaps (``prior_yield_hidden_overlap``;
+    :mod:`r2s.geometry.hidden_overlap`); a record per prior changed. Completions are left
+    alone (they were built on the table and outside the priors), and so is a prior
+    registered more than 5 mm into the table (a pose error)."""
+    priors = {i: s for i, s in shapes.items() if s[2] is not None}
+    posed, lifted = {}, {}
+    for i, (mesh, pose, _) in priors.items():
+        verts = transform_points(pose, mesh.vertices)
+        if sunk_too_far(verts, plane.point, plane.normal):
+            continue  # registered too low: a pose error, for geomopt
+        if o.prior_lift_below_table:
+            verts, n_below = lift_onto_plane(verts, plane.point, plane.normal)
+            if n_below:
+                lifted[i] = n_below
+        posed[i] = trimesh.Trimesh(verts, mesh.faces, process=False)
+    if len(posed) < 2:
+        return {}
+    new, reports, _ = yield_hidden_overlaps(posed, {i: observed[i][0] for i in posed})
+    if not new:
+        return {}  # the priors agree: exact shapes, nothing to give up or lift
+    if not o.prior_yield_hidden_overlap:
+        new, reports = {}, {}
+    records = {}
+    for i in sorted(set(lifted) | set(new)):
+        mesh, pose, reg = shapes[i]
+        moved = mesh.copy()
+        moved.vertices = transform_points(np.linalg.inv(pose), new.get(i, posed[i].vertices))
+        shapes[i] = (moved, pose, reg)
+        records[i] = ({"below_table_vertices": lifted[i]} if i in lifted else {}) | (
+            reports[i].as_dict() if i in reports else {})
+    return records
+
+
 def _with_silhouettes(scene: InputScene, plane: PlaneFit, o: Options, out: Path,
                       objects: list[ObjectState], posed: list[trimesh.Trimesh], flags: list[str]
                       ) -> tuple[list[ObjectState], list[trimesh.Trimesh]]:
@@ -718,14 +775,21 @@ def run(ctx: StageContext) -> dict:
     if o.completion_partition_hidden:
         ctx.progress("hidden space shared by completed objects", 0.9)
         _partition_hidden(scene, observed, shapes, plane, o)
+    yielded = {}
+    if o.prior_yield_hidden_overlap or o.prior_lift_below_table:  # only where priors overlap
+        ctx.progress("hidden overlaps of priors", 0.92)
+        yielded = _yield_prior_overlaps(observed, shapes, plane, o)
     objects: list[ObjectState] = []
     posed: list[trimesh.Trimesh] = []
     rmses: list[float] = []
     for spec in scene.objects:
+        extra = {}
+        if spec.id in choices:
+            extra["prior_choice"] = choices[spec.id]
+        if spec.id in yielded:
+            extra["hidden_overlap"] = yielded[spec.id]
         state, mesh_w, rmse, more = _save_object(spec, shapes[spec.id], observed[spec.id][0],
-                                                 out, o, table_extent_m,
-                                                 {"prior_choice": choices[spec.id]}
-                                                 if spec.id in choices else None)
+                                                 out, o, table_extent_m, extra or None)
         objects.append(state)
         posed.append(mesh_w)
         flags += more

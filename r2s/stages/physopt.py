@@ -31,7 +31,7 @@ from r2s.io.mesh_io import load_mesh, welded
 from r2s.io.paths import (INIT_ALTERNATES_DIR, PHYSOPT_COLLISION_DIR, PHYSOPT_LOG_FILE,
                           STATE_FILE, ScenePaths)
 from r2s.io.pieces_file import write_pieces
-from r2s.io.state import SceneState, read_state, write_state
+from r2s.io.state import ObjectState, SceneState, read_state, write_state
 from r2s.physopt.hierarchy import (descendants, lowest_points_m, order_root_to_leaves,
                                    parents_from_graph)
 from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, SEEN_POSE_KEY, seen_poses
@@ -75,7 +75,8 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
     trim_collision: Literal["completed", "all", "off"] = Field(
         "completed", description="Rebuild the convex pieces a neighbour's visual mesh reaches "
                                  "into from the object's own surface "
-                                 "(r2s/geometry/collision_trim.py): of completed objects, of "
+                                 "(r2s/geometry/collision_trim.py): of completed objects (and "
+                                 "of priors whose surface init moved out of another's), of "
                                  "all, or of none; export uses the pieces physopt checked.")
     shave_overlaps: bool = Field(
         True, description="Cut the convex pieces of an object where they overlap the pieces of "
@@ -271,10 +272,19 @@ def _trimmed_pieces(ctx: StageContext, state: SceneState, meshes: dict, poses: d
         return _Pieces(pieces, {}, {})
     ctx.progress("collision pieces against the neighbours", 0.1)
     only = None if mode == "all" else {o.id for o in state.objects
-                                       if o.source in ("completed", "silhouette")}
+                                       if o.source in ("completed", "silhouette")
+                                       or _yielded_at_init(o)}
     trimmed, reports = trim_scene_pieces(pieces, meshes, poses, only=only,
                                          max_split_depth=ctx.options.trim_split_levels)
     return _Pieces(trimmed, reports, {})
+
+
+def _yielded_at_init(o: ObjectState) -> bool:
+    """Whether init moved part of this prior's surface onto another's (its
+    ``hidden_overlap`` record): the prior is dented there, and its convex pieces, like a
+    completion's, span the dent."""
+    record = getattr(o, "hidden_overlap", None) or {}
+    return int(record.get("moved_vertices", 0)) > 0
 
 
 def _trim_log(reports: dict[int, TrimReport]) -> dict[str, dict]:
