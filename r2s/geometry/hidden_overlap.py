@@ -9,8 +9,10 @@ docs/realistic.md). The camera says nothing about whose the hidden space is, so 
 overlap goes to the object whose *observed surface* is nearer to it (the rule
 :mod:`r2s.geometry.hidden_partition` applies to completions), and the other object's
 surface there is moved onto the owner's: each vertex of the yielding mesh inside the
-owner is moved to where the ray from it towards the yielding object's centre leaves the
-owner, plus a clearance. The rendered image does not change
+owner is moved to its closest point on the owner's surface, plus a clearance, or, where
+that surface faces away from the yielding object (the underside of a plate's thin floor
+under a fruit sunk into it), to where the ray towards the yielding object's centre leaves
+the owner. The rendered image does not change
 (the moved surface was inside the other object, so hidden by it, or by whatever hid the
 overlap), the shapes touch along the owner's surface and no longer overlap, up to the
 spacing of the yielding mesh's vertices.
@@ -160,9 +162,9 @@ def _inside(mesh: trimesh.Trimesh, verts: np.ndarray):
     """The vertices (V, 3) that lie inside ``mesh`` by ``MIN_DEPTH_M`` to ``MAX_DEPTH_M``:
     (indices (K,), depth (K,) m, closest surface points (K, 3), outward normals there
     (K, 3)); None for none. Inside by ray parity for a closed mesh; for an open one (a
-    single-image model often has small holes) behind the closest face, confirmed farther
-    than ``NEAR_FACE_M`` from it by the winding number of the mesh decimated to
-    ``WINDING_FACES`` faces (a fold or flap can face a point from behind)."""
+    single-image model often has small holes and flipped faces) behind the closest face
+    within ``NEAR_FACE_M`` of it, and farther by the winding number of the mesh decimated
+    to ``WINDING_FACES`` faces (a flipped face can face a point deep inside)."""
     box = np.asarray(mesh.bounds)
     near = np.flatnonzero(np.all((verts >= box[0]) & (verts <= box[1]), axis=1))
     if not len(near):
@@ -179,7 +181,7 @@ def _inside(mesh: trimesh.Trimesh, verts: np.ndarray):
         inside = occupancy(scene, pts)
     else:
         inside = np.einsum("ni,ni->n", offset[keep], normal[keep]) < 0.0
-        far = inside & (depth[keep] >= NEAR_FACE_M)
+        far = depth[keep] >= NEAR_FACE_M
         if far.any():
             v, f = decimated(mesh, WINDING_FACES)
             inside[far] = winding_number(v, f, pts[far]) > 0.5
@@ -191,18 +193,28 @@ def _inside(mesh: trimesh.Trimesh, verts: np.ndarray):
 
 def _way_out(owner: trimesh.Trimesh, points: np.ndarray, centre: np.ndarray,
              closest: np.ndarray, normal: np.ndarray, clearance_m: float) -> np.ndarray:
-    """New positions (K, 3) of the yielding points (K, 3), which lie inside ``owner``: where
-    the ray from each towards the yielding object's centre (3,) leaves the owner, plus the
-    clearance; the closest surface point (``closest``, ``normal``: (K, 3)) where that exit
-    is farther than ``MAX_DEPTH_M``. Along the ray, not to the closest point, so a fruit
-    sunk through the thin floor of a plate comes back up onto the floor's top, not out of
-    its underside."""
-    direction = centre[None, :] - points
+    """New positions (K, 3) of the yielding points (K, 3), which lie inside ``owner``.
+
+    The closest surface point (``closest``, outward ``normal``: (K, 3)) plus the clearance,
+    where that surface faces the yielding object's centre (3,): neighbouring vertices go
+    to neighbouring surface points, so the dent is as smooth as the owner. Where the
+    closest surface faces away from it (a fruit sunk into the thin floor of a plate: the
+    floor's underside is nearest) the point goes instead to where the ray from it towards
+    the centre leaves the owner, plus the clearance (the floor's top), unless that exit is
+    farther than ``MAX_DEPTH_M``."""
+    towards = centre[None, :] - points
+    out = closest + clearance_m * normal
+    wrong_side = np.einsum("ni,ni->n", normal, towards) < 0.0
+    if not wrong_side.any():
+        return out
+    direction = towards[wrong_side]
     direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
-    t = first_hit_distance(raycasting_scene(owner.vertices, owner.faces), points, direction)
+    t = first_hit_distance(raycasting_scene(owner.vertices, owner.faces), points[wrong_side],
+                           direction)
     ok = np.isfinite(t) & (t < MAX_DEPTH_M)
-    return np.where(ok[:, None], points + (np.where(ok, t, 0.0) + clearance_m)[:, None] * direction,
-                    closest + clearance_m * normal)
+    idx = np.flatnonzero(wrong_side)[ok]
+    out[idx] = points[idx] + (t[ok] + clearance_m)[:, None] * direction[ok]
+    return out
 
 
 def lift_onto_plane(vertices: np.ndarray, plane_point: np.ndarray, plane_normal: np.ndarray,
