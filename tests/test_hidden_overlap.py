@@ -51,6 +51,9 @@ def test_two_overlapping_balls_stop_overlapping_and_keep_what_was_seen():
     b2 = trimesh.Trimesh(new[2], b.faces, process=False)
     assert _depth_inside(b2, a.vertices).max() < MIN_DEPTH_M
     assert _depth_inside(a, new[2]).max() < MIN_DEPTH_M
+    # nor do the yielded faces cut across the owner between their vertices
+    samples, _ = trimesh.sample.sample_surface(b2, 20000, seed=0)
+    assert _depth_inside(a, samples).max() < MIN_DEPTH_M
     moved = np.linalg.norm(new[2] - b.vertices, axis=1) > 1e-9
     seen = np.isin(np.arange(len(b.vertices)),
                    np.flatnonzero(np.asarray(b.vertices) @ up > 0.04 + 0.02))
