@@ -111,8 +111,8 @@ def yield_hidden_overlaps(meshes_world: Mapping[int, trimesh.Trimesh],
     owners: dict[int, list[int]] = {i: [] for i in ids}
 
     def give(loser: int, owner: int, hit, owner_mesh: trimesh.Trimesh | None) -> None:
-        """Move the loser's vertices in ``hit`` out of the owner: along the way to the
-        loser's centre (``owner_mesh`` given), or to the closest surface point."""
+        """Move the loser's vertices in ``hit`` out of the owner: by :func:`_way_out`
+        (``owner_mesh`` given), or to the closest surface point."""
         idx, depth, closest, normal = hit
         out[loser][idx] = (closest + clearance_m * normal if owner_mesh is None else
                            _way_out(owner_mesh, out[loser][idx], centres[loser], closest,
