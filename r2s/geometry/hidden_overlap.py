@@ -22,6 +22,7 @@ Frames: every mesh and point is in the world frame, metres.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -67,6 +68,32 @@ overlap on an 18 mm marker means one of the two is in the wrong place. The seed 
 deepest pair overlap, 16 mm on a 71 mm fruit, is 0.23."""
 
 
+class _Surface:
+    """One mesh (world frame) with what the tests ask of it, each built once: its
+    ray-casting scene, whether it is closed, its decimated copy for winding numbers, its
+    thickness."""
+
+    def __init__(self, mesh: trimesh.Trimesh):
+        self.mesh = mesh
+
+    @functools.cached_property
+    def scene(self):
+        return raycasting_scene(self.mesh.vertices, self.mesh.faces)
+
+    @functools.cached_property
+    def closed(self) -> bool:
+        return bool(trimesh.Trimesh(self.mesh.vertices, self.mesh.faces).is_watertight)
+
+    @functools.cached_property
+    def decimated(self) -> tuple[np.ndarray, np.ndarray]:
+        return decimated(self.mesh, WINDING_FACES)
+
+    @functools.cached_property
+    def thickness_m(self) -> float:
+        """The smallest extent of the mesh's oriented bounding box (m)."""
+        return float(np.min(self.mesh.bounding_box_oriented.primitive.extents))
+
+
 @dataclass(frozen=True)
 class YieldReport:
     """What :func:`yield_hidden_overlaps` did to one mesh: vertices moved, the deepest of
@@ -110,12 +137,12 @@ def yield_hidden_overlaps(meshes_world: Mapping[int, trimesh.Trimesh],
     deepest = {i: 0.0 for i in ids}
     owners: dict[int, list[int]] = {i: [] for i in ids}
 
-    def give(loser: int, owner: int, hit, owner_mesh: trimesh.Trimesh | None) -> None:
+    def give(loser: int, owner: int, hit, owner_surface: _Surface | None) -> None:
         """Move the loser's vertices in ``hit`` out of the owner: by :func:`_way_out`
-        (``owner_mesh`` given), or to the closest surface point."""
+        (``owner_surface`` given), or to the closest surface point."""
         idx, depth, closest, normal = hit
-        out[loser][idx] = (closest + clearance_m * normal if owner_mesh is None else
-                           _way_out(owner_mesh, out[loser][idx], centres[loser], closest,
+        out[loser][idx] = (closest + clearance_m * normal if owner_surface is None else
+                           _way_out(owner_surface, out[loser][idx], centres[loser], closest,
                                     normal, clearance_m))
         moved[loser][idx] = True
         deepest[loser] = max(deepest[loser], float(depth.max()))
@@ -124,7 +151,8 @@ def yield_hidden_overlaps(meshes_world: Mapping[int, trimesh.Trimesh],
 
     pairs = [(a, b) for k, a in enumerate(ids) for b in ids[k + 1:]
              if _boxes_meet(meshes_world[a].bounds, meshes_world[b].bounds)]
-    hits = {(a, b): (_inside(meshes_world[b], verts[a]), _inside(meshes_world[a], verts[b]))
+    surfaces = {i: _Surface(meshes_world[i]) for i in ids}
+    hits = {(a, b): (_inside(surfaces[b], verts[a]), _inside(surfaces[a], verts[b]))
             for a, b in pairs}
     overlap_m = max([float(h[1].max()) for both in hits.values() for h in both
                      if h is not None], default=0.0)
@@ -139,9 +167,9 @@ def yield_hidden_overlaps(meshes_world: Mapping[int, trimesh.Trimesh],
         owner, loser = (a, b) if _first_owns(lens, trees.get(a), trees.get(b)) else (b, a)
         hit = b_in if loser == b else a_in
         if hit is not None:
-            if float(hit[1].max()) > MAX_DENT_FRACTION * _thickness_m(meshes_world[loser]):
+            if float(hit[1].max()) > MAX_DENT_FRACTION * surfaces[loser].thickness_m:
                 continue  # a gross registration error, not a hidden-side shape error
-            give(loser, owner, hit, meshes_world[owner])
+            give(loser, owner, hit, surfaces[owner])
         decided.append((owner, loser))
     # what the yielding surface cannot take away (a thin part of the owner reaching between
     # the yielding mesh's vertices, a rim the moved faces still cross) the owner gives up
@@ -149,41 +177,40 @@ def yield_hidden_overlaps(meshes_world: Mapping[int, trimesh.Trimesh],
     # the owner's centre can run far along a flat owner (a plate's floor under a fruit)
     for owner, loser in decided:
         now = trimesh.Trimesh(out[loser], faces[loser], process=False)
-        hit = _inside(now, out[owner])
-        if hit is not None and float(hit[1].max()) <= MAX_DENT_FRACTION * _thickness_m(
-                meshes_world[owner]):
+        hit = _inside(_Surface(now), out[owner])
+        limit_m = MAX_DENT_FRACTION * surfaces[owner].thickness_m
+        if hit is not None and float(hit[1].max()) <= limit_m:
             give(owner, loser, hit, None)
     new = {i: out[i] for i in ids if moved[i].any()}
     reports = {i: YieldReport(int(moved[i].sum()), deepest[i], tuple(owners[i])) for i in new}
     return new, reports, overlap_m
 
 
-def _inside(mesh: trimesh.Trimesh, verts: np.ndarray):
-    """The vertices (V, 3) that lie inside ``mesh`` by ``MIN_DEPTH_M`` to ``MAX_DEPTH_M``:
-    (indices (K,), depth (K,) m, closest surface points (K, 3), outward normals there
-    (K, 3)); None for none. Inside by ray parity for a closed mesh; for an open one (a
+def _inside(surface: _Surface, verts: np.ndarray):
+    """The vertices (V, 3) that lie inside the surface's mesh by ``MIN_DEPTH_M`` to
+    ``MAX_DEPTH_M``: (indices (K,), depth (K,) m, closest surface points (K, 3), outward
+    normals there (K, 3)); None for none. Inside by ray parity for a closed mesh; for an open one (a
     single-image model often has small holes and flipped faces) behind the closest face
     within ``NEAR_FACE_M`` of it, and farther by the winding number of the mesh decimated
     to ``WINDING_FACES`` faces (a flipped face can face a point deep inside)."""
-    box = np.asarray(mesh.bounds)
+    box = np.asarray(surface.mesh.bounds)
     near = np.flatnonzero(np.all((verts >= box[0]) & (verts <= box[1]), axis=1))
     if not len(near):
         return None
-    scene = raycasting_scene(mesh.vertices, mesh.faces)
-    closest, normal = closest_surface_points(scene, verts[near])
+    closest, normal = closest_surface_points(surface.scene, verts[near])
     offset = verts[near] - closest
     depth = np.linalg.norm(offset, axis=1)
     keep = np.flatnonzero((depth > MIN_DEPTH_M) & (depth < MAX_DEPTH_M))
     if not len(keep):
         return None
     pts = verts[near[keep]]
-    if trimesh.Trimesh(mesh.vertices, mesh.faces).is_watertight:
-        inside = occupancy(scene, pts)
+    if surface.closed:
+        inside = occupancy(surface.scene, pts)
     else:
         inside = np.einsum("ni,ni->n", offset[keep], normal[keep]) < 0.0
         far = depth[keep] >= NEAR_FACE_M
         if far.any():
-            v, f = decimated(mesh, WINDING_FACES)
+            v, f = surface.decimated
             inside[far] = winding_number(v, f, pts[far]) > 0.5
     keep = keep[inside]
     if not len(keep):
@@ -191,7 +218,7 @@ def _inside(mesh: trimesh.Trimesh, verts: np.ndarray):
     return near[keep], depth[keep], closest[keep], normal[keep]
 
 
-def _way_out(owner: trimesh.Trimesh, points: np.ndarray, centre: np.ndarray,
+def _way_out(owner: _Surface, points: np.ndarray, centre: np.ndarray,
              closest: np.ndarray, normal: np.ndarray, clearance_m: float) -> np.ndarray:
     """New positions (K, 3) of the yielding points (K, 3), which lie inside ``owner``.
 
@@ -209,8 +236,7 @@ def _way_out(owner: trimesh.Trimesh, points: np.ndarray, centre: np.ndarray,
         return out
     direction = towards[wrong_side]
     direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
-    t = first_hit_distance(raycasting_scene(owner.vertices, owner.faces), points[wrong_side],
-                           direction)
+    t = first_hit_distance(owner.scene, points[wrong_side], direction)
     ok = np.isfinite(t) & (t < MAX_DEPTH_M)
     idx = np.flatnonzero(wrong_side)[ok]
     out[idx] = points[idx] + (t[ok] + clearance_m)[:, None] * direction[ok]
@@ -261,11 +287,6 @@ def _first_owns(lens: np.ndarray, first: cKDTree | None, second: cKDTree | None)
     if first is None or second is None:
         return second is None
     return bool(np.median(first.query(lens)[0]) <= np.median(second.query(lens)[0]))
-
-
-def _thickness_m(mesh: trimesh.Trimesh) -> float:
-    """The smallest extent of the mesh's oriented bounding box (m)."""
-    return float(np.min(mesh.bounding_box_oriented.primitive.extents))
 
 
 def _boxes_meet(a: np.ndarray, b: np.ndarray) -> bool:
