@@ -21,6 +21,7 @@ from typing import Any, Iterable, Mapping
 
 from r2s.diagnose.effects import all_effects, get_effect
 from r2s.errors import R2SError
+from r2s.geometry.declared_level import GROSS_TILT_DEG, declared_level, gross_level_correction
 from r2s.geometry.mask_fragments import fragment_parents, merge_masks
 from r2s.io.input_scene import Camera, InputScene
 from r2s.io.state import SceneState
@@ -65,7 +66,29 @@ def corrected_input(input_scene: InputScene, model: Mapping[str, Any] | None,
         effect = get_effect(name)
         if effect.level == "input":
             out = effect.apply_to_input(out, params)
+    out = levelled(out)
     return merged_fragments(out) if merge_fragments else out
+
+
+def levelled(scene: InputScene, limit_deg: float = GROSS_TILT_DEG) -> InputScene:
+    """``scene`` in a world turned about the camera centre so that its table is level, with
+    one warning line, when the declared pose tilts the table by more than ``limit_deg``
+    (:mod:`r2s.geometry.declared_level`); otherwise ``scene`` itself. The turn is applied
+    as a kept ``camera_rotation`` would be (camera and the priors' poses)."""
+    cam = scene.camera
+    level = declared_level(scene.depth_m, scene.masks, cam.K, cam.world_from_camera,
+                           [o.id for o in scene.objects])
+    correction = gross_level_correction(level, cam.world_from_camera[:3, 3], limit_deg)
+    if correction is None:
+        return scene
+    out = get_effect("camera_rotation").apply_to_input(
+        scene, {"world_correction": correction.tolist()})
+    note = (f"camera.json: world_from_camera tilts the table by {level.tilt_deg:.1f} deg from "
+            f"level (more than {limit_deg:g} deg: a table cannot be that steep, so the "
+            "declared camera pose is taken to be wrong); the scene is reconstructed in the "
+            "world turned about the camera centre to level the table, gravity perpendicular "
+            "to it")
+    return replace(out, warnings=list(out.warnings) + [note])
 
 
 def merged_fragments(scene: InputScene) -> InputScene:

@@ -49,15 +49,29 @@ def scene_objects(with_ball: bool = True) -> list[tuple[int, trimesh.Trimesh, np
 
 def render(depth_scale: float = 1.0, camera_rotation_deg: float = 0.0,
            table_tilt_deg: float = 0.0, with_ball: bool = True, noise_m: float = 0.0005,
-           seed: int = 0, depth_row_error_m: float = 0.0, lens_k1: float = 0.0) -> dict:
+           seed: int = 0, depth_row_error_m: float = 0.0, lens_k1: float = 0.0,
+           table_size_m: float = 1.2, floor_drop_m: Optional[float] = None,
+           table_thickness_m: float = 0.02, wall_y_m: Optional[float] = None) -> dict:
     """The test scene as arrays: depth (H, W), masks, K, declared and true camera poses,
-    the objects and the tilt (4, 4) applied to table and objects."""
+    the objects and the tilt (4, 4) applied to table and objects.
+
+    ``table_size_m``, ``table_thickness_m``: the table board; ``floor_drop_m``: a floor
+    this far below the table's top, seen past its edges (None: no floor); ``wall_y_m``: a
+    wall standing across the table at this y, behind the objects (None: no wall)."""
     rng = np.random.default_rng(seed)
     objects = scene_objects(with_ball)
     tilt = np.eye(4)
     tilt[:3, :3] = Rotation.from_euler("x", table_tilt_deg, degrees=True).as_matrix()
-    table = trimesh.creation.box((1.2, 1.2, 0.02))
-    table.apply_translation([0.0, 0.0, -0.01])
+    table = trimesh.creation.box((table_size_m, table_size_m, table_thickness_m))
+    table.apply_translation([0.0, 0.0, -table_thickness_m / 2])
+    if floor_drop_m is not None:
+        floor = trimesh.creation.box((8.0, 8.0, 0.02))
+        floor.apply_translation([0.0, 0.0, -floor_drop_m - 0.01])
+        table = trimesh.util.concatenate([table, floor])
+    if wall_y_m is not None:
+        wall = trimesh.creation.box((8.0, 0.02, 4.0))
+        wall.apply_translation([0.0, wall_y_m + 0.01, 1.0])
+        table = trimesh.util.concatenate([table, wall])
     table.apply_transform(tilt)
     K = intrinsics(WIDTH, HEIGHT, 50.0)
     world_from_camera = look_at([0.5, -0.35, 0.42], [0.0, 0.0, 0.03])
@@ -99,15 +113,18 @@ def write_scene(root: Path, depth_scale: float = 1.0, camera_rotation_deg: float
                 table_tilt_deg: float = 0.0, with_ball: bool = True, noise_m: float = 0.0005,
                 seed: int = 0, prior_pose_noise_m: float = 0.004,
                 prior_scales: Optional[dict] = None, depth_row_error_m: float = 0.0,
-                lens_k1: float = 0.0) -> Path:
+                lens_k1: float = 0.0, table_size_m: float = 1.2,
+                floor_drop_m: Optional[float] = None, table_thickness_m: float = 0.02) -> Path:
     """Write ``root/input`` and ``root/gt`` of the test scene; returns ``root``.
 
     ``prior_scales``: id -> factor by which that object's prior is too large (a prior's
     size error); ``depth_row_error_m``: an uncatalogued depth error, the depth reads long
     by this times the squared row offset from the centre (-1..1); ``lens_k1``: radial
-    lens distortion of the recorded depth and masks."""
+    lens distortion of the recorded depth and masks; ``table_size_m``, ``floor_drop_m``,
+    ``table_thickness_m``:
+    a smaller table with a floor seen past its edges (:func:`render`)."""
     r = render(depth_scale, camera_rotation_deg, table_tilt_deg, with_ball, noise_m, seed,
-               depth_row_error_m, lens_k1)
+               depth_row_error_m, lens_k1, table_size_m, floor_drop_m, table_thickness_m)
     rng = np.random.default_rng(seed + 1)
     objects, tilt, masks, K = r["objects"], r["tilt"], r["masks"], r["K"]
     depth, declared = r["depth"], r["declared"]

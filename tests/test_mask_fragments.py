@@ -92,7 +92,9 @@ def test_corrected_input_relabels_a_fragment_and_drops_its_object():
     out = corrected_input(scene, {})
     assert out.ids == [1] and out.merged_ids == {7: 1}
     assert (out.masks == 1).sum() == 40 * 80 and not (out.masks == 7).any()
-    assert len(out.warnings) == 1 and "instance 7 is taken as part of instance 1" in out.warnings[0]
+    # (the identity pose also gets the line of a table tilted beyond any real one)
+    merges = [w for w in out.warnings if "is taken as part of" in w]
+    assert len(merges) == 1 and "instance 7 is taken as part of instance 1" in merges[0]
     assert corrected_input(scene, {}, merge_fragments=False).ids == [1, 7]
 
 

@@ -203,6 +203,11 @@ class InputScene:
     merged_ids: dict[int, int] = field(default_factory=dict)
     """``{mask id: object id}`` of ids taken as pieces of another object (set by
     ``scene_model.corrected_input``; their pixels carry the object's id in ``masks``)."""
+    corrected_from_declared: Optional[np.ndarray] = None
+    """(4, 4) the rigid turn of the world that the scene's corrections applied (a kept
+    ``camera_rotation``, or a declared pose that tilts the table beyond any real table:
+    ``scene_model.levelled``): corrected world from the declared world of camera.json.
+    None: the declared world is kept."""
 
     @property
     def ids(self) -> list[int]:

@@ -12,14 +12,15 @@ the ground truth is exported as it is.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Optional
 
 import numpy as np
 from pydantic import Field
 
 from r2s.scene_model import corrected_input, corrected_state
-from r2s.errors import R2SError, StageError
-from r2s.io.input_scene import load_camera, load_input
+from r2s.errors import InputError, R2SError, StageError
+from r2s.io.atomic import atomic_write_json
+from r2s.io.input_scene import InputScene, load_camera, load_input
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import PHYSOPT_COLLISION_DIR, ScenePaths
 from r2s.io.state import read_state
@@ -140,14 +141,47 @@ def _scalar(v: object) -> bool:
     return isinstance(v, (int, float, str, bool)) or v is None
 
 
-def _observation(paths: ScenePaths, items: list[ObjectItem], opt: Options, model: dict
-                 ) -> tuple[dict[int, dict], list[str], dict]:
-    """Per-object ``observation`` blocks, warning lines and a scene summary (all empty for
-    a scene without input/, e.g. a ground truth exported by hand). Takes the flags an
-    earlier stage left in ``item.extra`` (:data:`OBSERVATION_FLAG_KEY`) out of them."""
+DECLARED_WORLD_FILE = "declared_world.json"
+"""Written beside scene.json when the scene was reconstructed in a corrected world."""
+
+
+def _write_declared_world(out_dir: Path, corrected_from_declared: np.ndarray,
+                          gravity: list[float]) -> None:
+    """``export/declared_world.json``: how the export's world (the corrected one) relates
+    to the declared world of input/camera.json, for a user whose robot lives in the
+    latter: both transforms (4 x 4, row-major) and the gravity vector in the declared
+    world."""
+    t = np.asarray(corrected_from_declared, dtype=np.float64)
+    declared_from_corrected = np.linalg.inv(t)
+    atomic_write_json(out_dir / DECLARED_WORLD_FILE, {
+        "why": "the declared camera pose was corrected (a kept camera_rotation, or a table "
+               "tilted beyond any real table by the declared pose); scene.json is in the "
+               "corrected world",
+        "corrected_from_declared": t.tolist(),
+        "declared_from_corrected": declared_from_corrected.tolist(),
+        "gravity_declared_world": (declared_from_corrected[:3, :3]
+                                   @ np.asarray(gravity, dtype=np.float64)).tolist()})
+
+
+def _corrected_view(paths: ScenePaths, model: dict, required: bool) -> Optional[InputScene]:
+    """The input as the scene's model corrects it (its camera is in the state's world), or
+    None without input/. An incomplete input/ is an error only where the observation check
+    needs it (``required``); otherwise the declared camera stands in (:func:`_camera`)."""
     if not paths.input.is_dir():
-        return {}, [], {}
-    view = corrected_input(load_input(paths.root), model)
+        return None
+    try:
+        return corrected_input(load_input(paths.root), model)
+    except InputError:
+        if required:
+            raise
+        return None
+
+
+def _observation(paths: ScenePaths, items: list[ObjectItem], opt: Options, model: dict,
+                 view: InputScene) -> tuple[dict[int, dict], list[str], dict]:
+    """Per-object ``observation`` blocks, warning lines and a scene summary against the
+    input as the scene's ``model`` corrects it (``view``). Takes the flags an earlier stage
+    left in ``item.extra`` (:data:`OBSERVATION_FLAG_KEY`) out of them."""
     for item in items:  # mask ids reconstructed as pieces of this object (extra key)
         pieces = sorted(f for f, p in view.merged_ids.items() if p == item.id)
         if pieces:
@@ -185,14 +219,19 @@ def run(ctx: StageContext) -> dict:
     users = {} if source == "gt" else user_entries(paths.root)
     warnings: list[str] = []
     observed: dict = {}
-    if opt.observation:
+    view = _corrected_view(paths, ctx.manifest.model, required=opt.observation)
+    if opt.observation and view is not None:
         ctx.progress("observation check", 0.0)
-        blocks, warnings, observed = _observation(paths, items, opt, ctx.manifest.model)
+        blocks, warnings, observed = _observation(paths, items, opt, ctx.manifest.model, view)
         for item in items:
             if item.id in blocks:
                 item.extra["observation"] = blocks[item.id]
+    # the ground truth lives in the true world, where the declared camera is the best guess
+    camera = view.camera if view is not None and source != "gt" else _camera(paths)
     bodies = build_and_write(ctx.out_dir, gravity, support, items, opt, paths.convex_cache,
-                             ctx.progress, users=users, camera=_camera(paths))
+                             ctx.progress, users=users, camera=camera)
+    if view is not None and source != "gt" and view.corrected_from_declared is not None:
+        _write_declared_world(ctx.out_dir, view.corrected_from_declared, gravity)
     ctx.progress("done", 1.0)
     summary = {"source": source, "objects": len(bodies),
                "collision_pieces": int(sum(len(b.collision_pieces) for b in bodies))}

@@ -58,6 +58,7 @@ from r2s.geometry import sanity
 from r2s.geometry.camera import backproject, transform_points
 from r2s.geometry.carving import carve_view
 from r2s.geometry.colors import color_mesh_from_image, has_appearance
+from r2s.geometry.border_extension import border_cap_points
 from r2s.geometry.completion import complete_from_points
 from r2s.geometry.hidden_overlap import lift_onto_plane, sunk_too_far, yield_hidden_overlaps
 from r2s.geometry.hidden_partition import Claimant, exclusion, overlaps
@@ -71,7 +72,8 @@ from r2s.geometry.prior_choice import (ChoiceMargins, Rest, choose, score_in_vie
                                        stands_alone_on_table)
 from r2s.geometry.prior_refine import RefinedPose, RefineOptions, refine_axis_scale
 from r2s.geometry.prior_silhouette import SilhouetteFitOptions, fit_priors_to_view
-from r2s.geometry.plane import PlaneFit, fit_plane_ransac, signed_distance
+from r2s.geometry.plane import PlaneFit, fit_support_plane, signed_distance, \
+    standing_gap_m
 from r2s.geometry.registration import (IcpOptions, RegistrationResult, register_prior,
                                        surface_fit, voxel_downsample)
 from r2s.scene_model import corrected_input
@@ -96,6 +98,14 @@ class Options(StageOptions):
     plane_max_tilt_deg: Optional[float] = Field(
         45.0, gt=0, le=90, description="Only planes within this angle of world +z are support "
         "candidates (a wall is not a table); None = any.")
+    plane_candidates: int = Field(
+        3, ge=1, description="Level planes tried among the background pixels when the objects "
+        "float above the largest (the floor seen past the table's edge is not the table); "
+        "the support is the one they stand on; 1 = always the largest plane.")
+    plane_floating_m: float = Field(
+        0.05, gt=0, description="The objects' gap above the largest plane (a quarter of the "
+        "objects' lowest points are farther) at which other planes are tried, and above "
+        "the support at which the result is flagged.")
     drop_foreign_rim: bool = Field(
         True, description="Drop mask rim pixels on the far side of a depth jump (a mask "
                           "that bleeds past the outline; see geometry/mask_edges.py).")
@@ -257,6 +267,11 @@ class Options(StageOptions):
         0.0, ge=0, description="Sweep a completed object's footprint towards the camera "
                                "into space hidden by nearer things, by up to this fraction "
                                "of its visible size (0 = off; see geometry/completion.py).")
+    completion_border_extent_m: float = Field(
+        0.15, ge=0, description="An object a left or right image border cuts is completed "
+                                "beyond it: its visible part next to the cut continued, as "
+                                "far as it is seen deep and wide, at most this far (0 = end "
+                                "at the border; see geometry/border_extension.py).")
     silhouette_min_px: int = Field(
         200, ge=0, description="An instance whose mask has too few depth readings to be "
                                "completed (a transparent, black or mirror-like object) is "
@@ -284,6 +299,20 @@ def _icp_options(o: Options) -> IcpOptions:
                       local_yaw_steps=o.icp_yaw_hypotheses, seed=o.seed)
 
 
+def _objects_points(scene: InputScene, rng: np.random.Generator,
+                    per_object: int = 4000) -> list[np.ndarray]:
+    """Each instance's observed world points (a subsample), for telling the plane the
+    objects stand on from a lower one."""
+    cam = scene.camera
+    out = []
+    for spec in scene.objects:
+        pts = backproject(scene.depth_m, cam.K, cam.world_from_camera, scene.masks == spec.id)
+        if len(pts) > per_object:
+            pts = pts[rng.choice(len(pts), size=per_object, replace=False)]
+        out.append(pts)
+    return out
+
+
 def _fit_support(scene: InputScene, o: Options) -> tuple[PlaneFit, np.ndarray]:
     """The support plane and the (subsampled) mask-0 points it was fitted on."""
     cam = scene.camera
@@ -295,13 +324,27 @@ def _fit_support(scene: InputScene, o: Options) -> tuple[PlaneFit, np.ndarray]:
     if len(points) > 200000:
         points = points[rng.choice(len(points), size=200000, replace=False)]
     try:
-        fit = fit_plane_ransac(points, threshold_m=o.plane_threshold_m,
-                               iterations=o.plane_iterations, seed=o.seed,
-                               viewpoint=cam.world_from_camera[:3, 3],
-                               max_tilt_deg=o.plane_max_tilt_deg)
+        fit = fit_support_plane(points, _objects_points(scene, rng),
+                                threshold_m=o.plane_threshold_m,
+                                iterations=o.plane_iterations, seed=o.seed,
+                                viewpoint=cam.world_from_camera[:3, 3],
+                                max_tilt_deg=o.plane_max_tilt_deg,
+                                max_candidates=o.plane_candidates,
+                                floating_m=o.plane_floating_m)
     except ValueError as exc:
         raise StageError(f"no support plane found: {exc}") from None
     return fit, points
+
+
+def _support_flags(plane: PlaneFit, observed: dict, o: Options) -> list[str]:
+    """A warning line when the objects float above the support (``observed``: id ->
+    (points, pixels)): the table they stand on was not found."""
+    gap_m = standing_gap_m(plane, [pts for pts, _ in observed.values()])
+    if not gap_m > o.plane_floating_m:
+        return []
+    return [f"support plane: the objects' lowest points are {1000 * gap_m:.0f} mm or more "
+            "above it (three quarters of the objects): the table they stand on may not be in "
+            "view, or may not be level"]
 
 
 def _object_points(scene: InputScene, obj_id: int, o: Options, plane: PlaneFit
@@ -537,10 +580,18 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
                        band_px=o.completion_carve_band_px,
                        masks=scene.masks if o.completion_carve_silhouette else None)
             if o.completion_carve else None)
+    cap, cap_src = np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+    if o.completion_border_extent_m > 0:
+        cap, cap_src = border_cap_points(pts, pix, cam.K, cam.world_from_camera, cam.width,
+                                         cam.height, plane.point, plane.normal,
+                                         max_extent_m=o.completion_border_extent_m,
+                                         others_world=np.concatenate(others) if others
+                                         else None)
     try:
-        both_pix = np.concatenate([pix, filled_pix])
+        both_pix = np.concatenate([pix, filled_pix, pix[cap_src]])
         parts = part_labels(both_pix, own_px)[0] if o.completion_footprint_by_part else None
-        shape = complete_from_points(np.concatenate([pts, filled]), plane.point, plane.normal,
+        shape = complete_from_points(np.concatenate([pts, filled, cap]), plane.point,
+                                     plane.normal,
                                      colors=scene.rgb[both_pix[:, 0], both_pix[:, 1]],
                                      cell_m=o.completion_cell_m, below_points_world=others,
                                      hull_margin_m=o.completion_hull_margin_px * pixel_m,
@@ -763,7 +814,8 @@ def run(ctx: StageContext) -> dict:
     np.save(out / "support_points.npy", support.astype(np.float32))
 
     observed = {spec.id: _object_points(scene, spec.id, o, plane) for spec in scene.objects}
-    flags: list[str] = list(scene.warnings)  # probably-wrong inputs and results, one line each
+    # probably-wrong inputs and results, one line each
+    flags: list[str] = list(scene.warnings) + _support_flags(plane, observed, o)
     table_extent_m = sanity.robust_extent_m(support)
     priors, shapes = _register_or_complete(scene, observed, plane, o, flags, ctx.progress)
     ctx.progress("fit priors to the view", 0.8)

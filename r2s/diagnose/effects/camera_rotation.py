@@ -59,7 +59,10 @@ class CameraRotation(Effect):
         objects = [o if o.world_from_prior is None else
                    replace(o, world_from_prior=corr @ o.world_from_prior)
                    for o in scene.objects]
-        return replace(scene, camera=camera, objects=objects)
+        before = (np.eye(4) if scene.corrected_from_declared is None
+                  else np.asarray(scene.corrected_from_declared, dtype=np.float64))
+        return replace(scene, camera=camera, objects=objects,
+                       corrected_from_declared=corr @ before)
 
     def apply_to_state(self, state: SceneState, params: dict) -> SceneState:
         return transform_state(state, np.asarray(params["world_correction"], dtype=np.float64))

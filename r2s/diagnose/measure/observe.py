@@ -30,7 +30,7 @@ from r2s.geometry.camera import backproject, camera_center, pixel_rays
 from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexParams
 from r2s.geometry.mass_properties import mass_properties
-from r2s.geometry.plane import fit_plane_ransac
+from r2s.geometry.plane import fit_support_plane, signed_distance
 from r2s.geometry.raycast import raycast_view
 from r2s.io.input_scene import InputScene
 from r2s.physical.density_table import density_for_label
@@ -128,8 +128,9 @@ def support_residual(inp: InputScene, gravity: np.ndarray, sigma_rad: float,
     up /= np.linalg.norm(up)
     centre = camera_center(inp.camera.world_from_camera)
     try:
-        plane = fit_plane_ransac(pts, threshold_m=0.004, iterations=400, seed=seed, up_hint=up,
-                                 viewpoint=centre, max_tilt_deg=30.0)
+        plane = fit_support_plane(pts, _objects_points(inp, seed), threshold_m=0.004,
+                                  iterations=400, seed=seed, up_hint=up, viewpoint=centre,
+                                  max_tilt_deg=30.0)
     except ValueError:
         return None
     inl = pts[plane.inliers]
@@ -145,11 +146,43 @@ def support_residual(inp: InputScene, gravity: np.ndarray, sigma_rad: float,
     return replace(data, height_used=bool(used))
 
 
-def table_shape_residual(inp: InputScene, sigma_m: float, max_points: int = 20000,
-                         seed: int = 0) -> Optional[TableShapeData]:
-    """Every table pixel (mask 0) with a reading, back-projected into the camera frame
-    (a seeded subsample), with its grey level."""
+def _objects_points(inp: InputScene, seed: int, per_object: int = 4000) -> list[np.ndarray]:
+    """Each instance's observed world points (a seeded subsample)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for spec in inp.objects:
+        pts = backproject(inp.depth_m, inp.camera.K, inp.camera.world_from_camera,
+                          mask=inp.masks == spec.id)
+        if len(pts) > per_object:
+            pts = pts[rng.choice(len(pts), size=per_object, replace=False)]
+        out.append(pts)
+    return out
+
+
+TABLE_BAND_M = 0.05
+"""Background pixels farther than this from the support plane are not the table (the
+floor or a wall seen past its edge); they are left out of the table's residuals."""
+
+
+def table_pixels(inp: InputScene, support: Optional[SupportData]) -> np.ndarray:
+    """(H, W) bool: background pixels (mask 0) with a reading, within
+    :data:`TABLE_BAND_M` of the support plane when one is given."""
     mask = (inp.masks == 0) & np.isfinite(inp.depth_m) & (inp.depth_m > 0)
+    if support is None:
+        return mask
+    rows, cols = np.nonzero(mask)
+    pts = backproject(inp.depth_m, inp.camera.K, inp.camera.world_from_camera, mask=mask)
+    far = np.abs(signed_distance(pts, support.point, support.normal)) > TABLE_BAND_M
+    mask[rows[far], cols[far]] = False
+    return mask
+
+
+def table_shape_residual(inp: InputScene, sigma_m: float, max_points: int = 20000,
+                         seed: int = 0, support: Optional[SupportData] = None
+                         ) -> Optional[TableShapeData]:
+    """Every table pixel with a reading (:func:`table_pixels`), back-projected into the
+    camera frame (a seeded subsample), with its grey level."""
+    mask = table_pixels(inp, support)
     rows, cols = np.nonzero(mask)
     if len(rows) < 100:
         return None
@@ -193,7 +226,7 @@ def depth_residual_map(inp: InputScene, objects: list[ObjectModel],
     if support is not None:
         plane_depth = _plane_depth(cam.K, cam.world_from_camera, support.point, support.normal,
                                    cam.width, cam.height)
-        table = (inp.masks == 0) & np.isfinite(plane_depth)
+        table = table_pixels(inp, support) & np.isfinite(plane_depth)
         residual[table] = obs[table] - plane_depth[table]
     return DepthMapData(residual_m=residual, depth_m=obs, on_object=inp.masks > 0,
                         object_id=np.where(on_obj, inp.masks, 0).astype(np.int64),

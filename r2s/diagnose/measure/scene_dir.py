@@ -265,7 +265,8 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
             notes.append(f"{paths.interaction}: no {PUSH_FILE}; the interaction is not used")
     residuals = Residuals(registration=registration, support=support, physics=physics,
                           interaction=interaction, depth_map=depth_map, notes=tuple(notes),
-                          table_shape=table_shape_residual(inp, settings.table_shape_sigma_m))
+                          table_shape=table_shape_residual(inp, settings.table_shape_sigma_m,
+                                                           support=support))
     return Measured(residuals, stage, qualities, inp, keep)
 
 
