@@ -3,7 +3,10 @@
 ``manifest.model`` holds ``{"effects": {name: params}}``. Stages call:
 
 - :func:`corrected_input` on the loaded ``input/`` (init; texture and evaluate for the
-  camera): depth bias, lens distortion, focal length and camera rotation corrected;
+  camera): depth bias, lens distortion, focal length and camera rotation corrected; then,
+  whatever the model, an instance that is the table, floor or a wall made background, a
+  declared pose that tilts the table beyond any real table levelled, and a segmenter's
+  split pieces merged;
 - :func:`corrected_state` on a state before they use it (physopt, export): COM shifts,
   friction, a tilted table (and, for a state made before a camera correction was kept,
   the world rotation).
@@ -19,8 +22,11 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any, Iterable, Mapping
 
+import numpy as np
+
 from r2s.diagnose.effects import all_effects, get_effect
 from r2s.errors import R2SError
+from r2s.geometry.background_instances import background_instances
 from r2s.geometry.declared_level import GROSS_TILT_DEG, declared_level, gross_level_correction
 from r2s.geometry.mask_fragments import fragment_parents, merge_masks
 from r2s.io.input_scene import Camera, InputScene
@@ -66,8 +72,28 @@ def corrected_input(input_scene: InputScene, model: Mapping[str, Any] | None,
         effect = get_effect(name)
         if effect.level == "input":
             out = effect.apply_to_input(out, params)
-    out = levelled(out)
+    out = levelled(without_background_instances(out))
     return merged_fragments(out) if merge_fragments else out
+
+
+def without_background_instances(scene: InputScene) -> InputScene:
+    """``scene`` with every instance that is the table, floor or a wall
+    (:mod:`r2s.geometry.background_instances`) turned into background (mask 0) and its
+    :class:`ObjectSpec` dropped, one warning line each; ``scene`` itself when there is none.
+    An instance with a shape prior is always an object."""
+    cam = scene.camera
+    candidates = [o.id for o in scene.objects if o.prior_mesh is None]
+    if len(scene.objects) < 2 or not candidates:
+        return scene
+    found = [b for b in background_instances(scene.masks, scene.depth_m, cam.K,
+                                             cam.world_from_camera, scene.ids)
+             if b.id in candidates]
+    if not found or len(found) >= len(scene.objects):
+        return scene
+    gone = {b.id for b in found}
+    masks = np.where(np.isin(scene.masks, list(gone)), 0, scene.masks).astype(scene.masks.dtype)
+    return replace(scene, masks=masks, objects=[o for o in scene.objects if o.id not in gone],
+                   warnings=list(scene.warnings) + [b.note() for b in found])
 
 
 def levelled(scene: InputScene, limit_deg: float = GROSS_TILT_DEG) -> InputScene:
