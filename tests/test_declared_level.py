@@ -116,3 +116,26 @@ def test_init_levels_an_identity_pose(tmp_path):
     assert np.allclose(np.asarray(declared["corrected_from_declared"])
                        @ np.asarray(declared["declared_from_corrected"]), np.eye(4), atol=1e-9)
     assert json.loads((scene / "export" / "scene.json").read_text())["gravity"] == [0.0, 0.0, -9.81]
+    # the viewer (and predict) place the input camera in the export's world: the observed
+    # table is then level, at the support's height; in the declared world it is not
+    from r2s.io.paths import ScenePaths
+    from r2s.viewer.scene_data import observed_points
+
+    support_z = state["support"]["point"][2]
+    points, _, _, _ = observed_points(ScenePaths(scene))
+    assert np.mean(np.abs(points[:, 2] - support_z) < 0.005) > 0.5
+    # and predict replays a push given in the declared world in the export's world
+    from r2s.interaction.predict import _in_export_world
+    from r2s.io.push_action import PushAction
+
+    push = PushAction(start=[0.0, 0.0, 0.5], waypoints=[{"position": [0.0, 0.1, 0.5]}])
+    moved = _in_export_world(push, ScenePaths(scene))
+    t = np.asarray(declared["corrected_from_declared"])
+    assert np.allclose(moved.start, t[:3, :3] @ [0.0, 0.0, 0.5] + t[:3, 3], atol=1e-12)
+    assert np.allclose(moved.waypoints[0].position,
+                       t[:3, :3] @ [0.0, 0.1, 0.5] + t[:3, 3], atol=1e-12)
+    assert moved.waypoints[0].speed_mps == push.waypoints[0].speed_mps
+    (scene / "export" / "declared_world.json").unlink()
+    points, _, _, _ = observed_points(ScenePaths(scene))
+    assert np.mean(np.abs(points[:, 2] - support_z) < 0.005) < 0.2
+    assert _in_export_world(push, ScenePaths(scene)).start == push.start

@@ -26,6 +26,7 @@ from r2s.errors import StageError
 from r2s.io.push_action import PushAction, read_action
 from r2s.interaction.push import replay_push
 from r2s.io.atomic import atomic_write_bytes, atomic_write_json, commit_dir, recover_dir, scratch_dir
+from r2s.io.declared_world import camera_in_export_world, points_in_export_world
 from r2s.io.input_scene import load_camera
 from r2s.io.interaction_input import ObservedPush, load_observed_push, read_true_push
 from r2s.io.mesh_io import load_mesh
@@ -42,7 +43,7 @@ from r2s.sim.render import colour_bodies, render_rgb, scaled_intrinsics, side_by
 def _frame(client: int, paths: ScenePaths, width_px: int = 640) -> np.ndarray | None:
     if not paths.camera.is_file():
         return None
-    cam, _ = load_camera(paths.camera)
+    cam = camera_in_export_world(load_camera(paths.camera)[0], paths.export)
     scale = min(1.0, width_px / cam.width)
     return render_rgb(client, scaled_intrinsics(cam.K, scale), cam.world_from_camera,
                       max(1, round(cam.width * scale)), max(1, round(cam.height * scale)))
@@ -62,12 +63,23 @@ def _action(paths: ScenePaths, action_path: Optional[Path]
     return action, observed if observed is not None and observed.action == action else None
 
 
+def _in_export_world(action: PushAction, paths: ScenePaths) -> PushAction:
+    """The push (declared world, as input/interaction/ and --action give it) in the export's
+    world, which differs where the declared camera pose was corrected
+    (:mod:`r2s.io.declared_world`). A box end effector keeps its axes."""
+    declared = np.array([action.start] + [w.position for w in action.waypoints])
+    path = points_in_export_world(declared, paths.export)
+    waypoints = [w.model_copy(update={"position": p.tolist()})
+                 for w, p in zip(action.waypoints, path[1:])]
+    return action.model_copy(update={"start": path[0].tolist(), "waypoints": waypoints})
+
+
 def prediction_error(paths: ScenePaths, loaded: LoadedScene, initial: dict, final: dict,
                      observed: ObservedPush) -> dict:
     """``error`` of predicted.json (see the module docstring); initial / final: id -> (4, 4)."""
     out: dict = {"pushed_id": observed.pushed_id}
     if observed.depth_after_m is not None and observed.masks_after is not None:
-        cam, _ = load_camera(paths.camera)
+        cam = camera_in_export_world(load_camera(paths.camera)[0], paths.export)
         points = observed_points(observed.depth_after_m, observed.masks_after, cam.K,
                                  cam.world_from_camera)
         meshes = {o.id: posed(load_mesh(loaded.export_dir / o.visual_mesh), final[o.id])
@@ -115,7 +127,7 @@ def _predict(scene_dir: Path, action_path: Optional[Path]) -> dict:
         colour_bodies(client, loaded.body_ids, loaded.support_body)
         initial = dict(zip(loaded.ids, loaded.initial_world_from_object()))
         before = _frame(client, paths)
-        final = replay_push(client, loaded, action)
+        final = replay_push(client, loaded, _in_export_world(action, paths))
         after = _frame(client, paths)
     finally:
         pb.disconnect(physicsClientId=client)

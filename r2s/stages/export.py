@@ -19,7 +19,7 @@ from pydantic import Field
 
 from r2s.scene_model import corrected_input, corrected_state
 from r2s.errors import InputError, R2SError, StageError
-from r2s.io.atomic import atomic_write_json
+from r2s.io.declared_world import write_declared_world
 from r2s.io.input_scene import InputScene, load_camera, load_input
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import PHYSOPT_COLLISION_DIR, ScenePaths
@@ -141,28 +141,6 @@ def _scalar(v: object) -> bool:
     return isinstance(v, (int, float, str, bool)) or v is None
 
 
-DECLARED_WORLD_FILE = "declared_world.json"
-"""Written beside scene.json when the scene was reconstructed in a corrected world."""
-
-
-def _write_declared_world(out_dir: Path, corrected_from_declared: np.ndarray,
-                          gravity: list[float]) -> None:
-    """``export/declared_world.json``: how the export's world (the corrected one) relates
-    to the declared world of input/camera.json, for a user whose robot lives in the
-    latter: both transforms (4 x 4, row-major) and the gravity vector in the declared
-    world."""
-    t = np.asarray(corrected_from_declared, dtype=np.float64)
-    declared_from_corrected = np.linalg.inv(t)
-    atomic_write_json(out_dir / DECLARED_WORLD_FILE, {
-        "why": "the declared camera pose was corrected (a kept camera_rotation, or a table "
-               "tilted beyond any real table by the declared pose); scene.json is in the "
-               "corrected world",
-        "corrected_from_declared": t.tolist(),
-        "declared_from_corrected": declared_from_corrected.tolist(),
-        "gravity_declared_world": (declared_from_corrected[:3, :3]
-                                   @ np.asarray(gravity, dtype=np.float64)).tolist()})
-
-
 def _corrected_view(paths: ScenePaths, model: dict, required: bool) -> Optional[InputScene]:
     """The input as the scene's model corrects it (its camera is in the state's world), or
     None without input/. An incomplete input/ is an error only where the observation check
@@ -231,7 +209,7 @@ def run(ctx: StageContext) -> dict:
     bodies = build_and_write(ctx.out_dir, gravity, support, items, opt, paths.convex_cache,
                              ctx.progress, users=users, camera=camera)
     if view is not None and source != "gt" and view.corrected_from_declared is not None:
-        _write_declared_world(ctx.out_dir, view.corrected_from_declared, gravity)
+        write_declared_world(ctx.out_dir, view.corrected_from_declared, gravity)
     ctx.progress("done", 1.0)
     summary = {"source": source, "objects": len(bodies),
                "collision_pieces": int(sum(len(b.collision_pieces) for b in bodies))}

@@ -19,6 +19,7 @@ from pydantic import ValidationError
 from r2s.errors import InputError
 from r2s.geometry.camera import backproject
 from r2s.graph.schema import ContactGraph
+from r2s.io.declared_world import camera_in_export_world
 from r2s.io.input_scene import Camera, load_camera, load_depth, load_rgb, read_json_file
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import ScenePaths
@@ -117,6 +118,7 @@ def observed_points(paths: ScenePaths, max_points: int = MAX_POINTS
     Pixels are taken on a regular grid whose stride keeps P <= ``max_points``.
     """
     cam, unit_m = load_camera(paths.camera)
+    cam = camera_in_export_world(cam, paths.export)  # where the exported objects are
     depth = load_depth(paths, cam.width, cam.height, unit_m)
     rgb = load_rgb(paths.rgb, cam.width, cam.height)
     valid = int(np.isfinite(depth).sum())
