@@ -55,6 +55,20 @@ def backproject(depth_m: np.ndarray, K: np.ndarray, world_from_camera: np.ndarra
     return points
 
 
+def instance_points(depth_m: np.ndarray, K: np.ndarray, world_from_camera: np.ndarray,
+                    masks: np.ndarray, ids: list[int], rng: np.random.Generator,
+                    per_instance: int) -> list[np.ndarray]:
+    """Per instance id, its observed world points: (N_k, 3), at most ``per_instance`` of
+    them (drawn with ``rng`` when there are more). ``masks``: (H, W) ids."""
+    out = []
+    for obj_id in ids:
+        pts = backproject(depth_m, K, world_from_camera, np.asarray(masks) == obj_id)
+        if len(pts) > per_instance:
+            pts = pts[rng.choice(len(pts), size=per_instance, replace=False)]
+        out.append(pts)
+    return out
+
+
 def rays_per_depth(pixels: np.ndarray, K: np.ndarray) -> np.ndarray:
     """(N, 3) camera-frame ray through each ``(row, col)`` pixel of ``pixels`` (N, 2),
     scaled to camera z = 1: the camera point at depth z is ``z * ray``."""

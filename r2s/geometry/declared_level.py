@@ -23,7 +23,7 @@ from typing import Optional
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from r2s.geometry.camera import backproject
+from r2s.geometry.camera import backproject, instance_points
 from r2s.geometry.plane import fit_support_plane, standing_gap_m
 
 GROSS_TILT_DEG = 15.0
@@ -59,12 +59,7 @@ def declared_level(depth_m: np.ndarray, masks: np.ndarray, K: np.ndarray,
         return None
     if len(background) > max_points:
         background = background[rng.choice(len(background), size=max_points, replace=False)]
-    objects = []
-    for obj_id in object_ids:
-        pts = backproject(depth_m, K, world_from_camera, np.asarray(masks) == obj_id)
-        if len(pts) > 2000:
-            pts = pts[rng.choice(len(pts), size=2000, replace=False)]
-        objects.append(pts)
+    objects = instance_points(depth_m, K, world_from_camera, masks, object_ids, rng, 2000)
     viewpoint = np.asarray(world_from_camera)[:3, 3]
     # a level support the objects stand on first: a wall or a floor that is larger than the
     # table must not turn a correctly declared world on its side

@@ -55,7 +55,7 @@ from scipy import ndimage
 
 from r2s.errors import InputError, StageError
 from r2s.geometry import sanity
-from r2s.geometry.camera import backproject, transform_points
+from r2s.geometry.camera import backproject, instance_points, transform_points
 from r2s.geometry.carving import carve_view
 from r2s.geometry.colors import color_mesh_from_image, has_appearance
 from r2s.geometry.border_extension import border_cap_points
@@ -299,20 +299,6 @@ def _icp_options(o: Options) -> IcpOptions:
                       local_yaw_steps=o.icp_yaw_hypotheses, seed=o.seed)
 
 
-def _objects_points(scene: InputScene, rng: np.random.Generator,
-                    per_object: int = 4000) -> list[np.ndarray]:
-    """Each instance's observed world points (a subsample), for telling the plane the
-    objects stand on from a lower one."""
-    cam = scene.camera
-    out = []
-    for spec in scene.objects:
-        pts = backproject(scene.depth_m, cam.K, cam.world_from_camera, scene.masks == spec.id)
-        if len(pts) > per_object:
-            pts = pts[rng.choice(len(pts), size=per_object, replace=False)]
-        out.append(pts)
-    return out
-
-
 def _fit_support(scene: InputScene, o: Options) -> tuple[PlaneFit, np.ndarray]:
     """The support plane and the (subsampled) mask-0 points it was fitted on."""
     cam = scene.camera
@@ -324,7 +310,9 @@ def _fit_support(scene: InputScene, o: Options) -> tuple[PlaneFit, np.ndarray]:
     if len(points) > 200000:
         points = points[rng.choice(len(points), size=200000, replace=False)]
     try:
-        fit = fit_support_plane(points, _objects_points(scene, rng),
+        objects = instance_points(scene.depth_m, cam.K, cam.world_from_camera, scene.masks,
+                                  scene.ids, rng, per_instance=4000)
+        fit = fit_support_plane(points, objects,
                                 threshold_m=o.plane_threshold_m,
                                 iterations=o.plane_iterations, seed=o.seed,
                                 viewpoint=cam.world_from_camera[:3, 3],

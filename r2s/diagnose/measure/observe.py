@@ -26,7 +26,7 @@ from r2s.diagnose.measure.physics import (BodySpec, WorldSpec, rollout_motion, s
 from r2s.diagnose.stats.noise import scale_noise_level
 from r2s.diagnose.stats.table_height import declares_table
 from r2s.diagnose.measure.scale_fit import SurfaceModel, fit_prior_scale, free_space
-from r2s.geometry.camera import backproject, camera_center, pixel_rays
+from r2s.geometry.camera import backproject, camera_center, instance_points, pixel_rays
 from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexParams
 from r2s.geometry.mass_properties import mass_properties
@@ -128,7 +128,9 @@ def support_residual(inp: InputScene, gravity: np.ndarray, sigma_rad: float,
     up /= np.linalg.norm(up)
     centre = camera_center(inp.camera.world_from_camera)
     try:
-        plane = fit_support_plane(pts, _objects_points(inp, seed), threshold_m=0.004,
+        objects = instance_points(inp.depth_m, inp.camera.K, inp.camera.world_from_camera,
+                                  inp.masks, inp.ids, np.random.default_rng(seed), 4000)
+        plane = fit_support_plane(pts, objects, threshold_m=0.004,
                                   iterations=400, seed=seed, up_hint=up, viewpoint=centre,
                                   max_tilt_deg=30.0)
     except ValueError:
@@ -144,19 +146,6 @@ def support_residual(inp: InputScene, gravity: np.ndarray, sigma_rad: float,
                        height_sigma_m=float(height_sigma_m))
     used = table_height == "on" or (table_height == "auto" and declares_table(data))
     return replace(data, height_used=bool(used))
-
-
-def _objects_points(inp: InputScene, seed: int, per_object: int = 4000) -> list[np.ndarray]:
-    """Each instance's observed world points (a seeded subsample)."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for spec in inp.objects:
-        pts = backproject(inp.depth_m, inp.camera.K, inp.camera.world_from_camera,
-                          mask=inp.masks == spec.id)
-        if len(pts) > per_object:
-            pts = pts[rng.choice(len(pts), size=per_object, replace=False)]
-        out.append(pts)
-    return out
 
 
 TABLE_BAND_M = 0.05
