@@ -28,8 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from r2s.geometry.camera import backproject
-from r2s.geometry.plane import fit_plane_ransac, signed_distance
+from r2s.geometry.camera import backproject, instance_points
+from r2s.geometry.plane import fit_plane_ransac, standing_gap_m
 
 MIN_AREA_FRACTION = 0.2
 MIN_BORDERS = 2
@@ -72,6 +72,7 @@ def background_instances(masks: np.ndarray, depth_m: np.ndarray, K: np.ndarray,
     total = masks.size
     rng = np.random.default_rng(seed)
     found = []
+    points_of: dict[int, np.ndarray] | None = None
     for obj_id in ids:
         mask = masks == obj_id
         area = float(mask.sum()) / total
@@ -93,15 +94,13 @@ def background_instances(masks: np.ndarray, depth_m: np.ndarray, K: np.ndarray,
         planar = float(plane.inliers.mean())
         if planar < PLANAR_FRACTION:
             continue
-        lows = []
-        for other in ids:
-            if other == obj_id:
-                continue
-            other_pts = backproject(depth_m, K, world_from_camera, masks == other)
-            if len(other_pts):
-                lows.append(np.percentile(signed_distance(other_pts, plane.point,
-                                                          plane.normal), 5))
-        if not lows or float(np.median(lows)) < -PLANAR_TOLERANCE_M:
+        if points_of is None:  # every instance's points, once, all of them
+            points_of = dict(zip(ids, instance_points(depth_m, K, world_from_camera, masks,
+                                                      ids, rng, masks.size)))
+        others = [points_of[other] for other in ids if other != obj_id]
+        # the median over the others of their lowest points (5th percentile of heights)
+        gap = standing_gap_m(plane, others, point_percentile=5.0, object_quantile=0.5)
+        if not gap >= -PLANAR_TOLERANCE_M:  # NaN (no other points) fails too
             continue
         found.append(BackgroundInstance(obj_id, area, borders, planar))
     return found

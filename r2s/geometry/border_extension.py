@@ -84,10 +84,15 @@ class BorderCut:
 
     def beyond_m(self, z: np.ndarray) -> np.ndarray:
         """(N,) the bound along ``outward`` past which a column up to height ``z`` (N,) is
-        outside the image at every height: the line at the table or at ``z``, whichever
-        lies farther out."""
-        z = np.clip(np.asarray(z, dtype=np.float64), 0.0, None)
-        return self.trace_m + np.maximum(0.0, self.slope * z)
+        outside the image at every height (:func:`_column_bound_m`)."""
+        return _column_bound_m(self.trace_m, self.slope, z)
+
+
+def _column_bound_m(trace_m: float, slope: float, z: np.ndarray) -> np.ndarray:
+    """(N,) where a lean side plane's line lies at height ``z`` (N,) or at the table,
+    whichever is farther out: ``trace_m + max(0, slope * z)``."""
+    z = np.clip(np.asarray(z, dtype=np.float64), 0.0, None)
+    return trace_m + np.maximum(0.0, slope * z)
 
 
 def _outward_normal_camera(side: str, K: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -134,15 +139,15 @@ def border_cuts(points_plane: np.ndarray, pixels: np.ndarray, K: np.ndarray,
         outward = normal[:2] / across
         # the plane n . (p - eye) = 0 at height z: (outward . p_xy) = trace + slope z
         trace = float(outward @ eye[:2] + normal[2] * eye[2] / across)
-        cut = BorderCut(side, outward, trace, float(-normal[2] / across), 0.0, 0.0, 0.0)
-        inside = cut.beyond_m(points_plane[:, 2]) - points_plane[:, :2] @ outward
+        slope = float(-normal[2] / across)
+        inside = _column_bound_m(trace, slope, points_plane[:, 2]) - points_plane[:, :2] @ outward
         visible = float(np.percentile(inside, 98))
         along = np.array([-outward[1], outward[0]])
         lo, hi = np.percentile(points_plane[on_border, :2] @ along, [5, 95])
         extent = min(visible, float(hi - lo), max_extent_m)
         if extent > 1e-3:
-            cuts.append(BorderCut(side, outward, cut.trace_m, cut.slope, visible,
-                                  float(hi - lo), extent))
+            cuts.append(BorderCut(side, outward, trace, slope, visible, float(hi - lo),
+                                  extent))
     return cuts
 
 

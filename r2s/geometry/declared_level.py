@@ -24,13 +24,11 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from r2s.geometry.camera import backproject, instance_points
-from r2s.geometry.plane import fit_support_plane, standing_gap_m
+from r2s.geometry.plane import FLOATING_M, fit_support_plane, standing_gap_m
 
 GROSS_TILT_DEG = 15.0
 """Above this angle between the table's normal and the declared +z the declared camera pose,
 not the table, is taken to be wrong."""
-FLOATING_M = 0.05
-"""Objects whose lowest points are this far above a plane do not stand on it."""
 UP = np.array([0.0, 0.0, 1.0])
 
 

@@ -145,6 +145,10 @@ def world_from_plane(point: np.ndarray, normal: np.ndarray,
 
 
 
+FLOATING_M = 0.05
+"""Objects whose :func:`standing_gap_m` above a plane exceeds this do not stand on it."""
+
+
 def standing_gap_m(plane: PlaneFit, object_points: list[np.ndarray],
                    point_percentile: float = 1.0, object_quantile: float = 0.25) -> float:
     """How far above ``plane`` the objects stand (m): each object's lowest points (the
@@ -162,7 +166,7 @@ def fit_support_plane(points: np.ndarray, object_points: list[np.ndarray],
                       threshold_m: float = 0.005, iterations: int = 500, seed: int = 0,
                       up_hint: np.ndarray | None = None, viewpoint: np.ndarray | None = None,
                       max_tilt_deg: float | None = None, max_candidates: int = 3,
-                      min_candidate_points: int = 500, floating_m: float = 0.05) -> PlaneFit:
+                      min_candidate_points: int = 500, floating_m: float = FLOATING_M) -> PlaneFit:
     """The plane the objects stand on, among the largest level planes of the background.
 
     A camera that sees past the table's edge sees the floor, a shelf below or a lower

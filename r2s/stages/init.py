@@ -72,7 +72,7 @@ from r2s.geometry.prior_choice import (ChoiceMargins, Rest, choose, score_in_vie
                                        stands_alone_on_table)
 from r2s.geometry.prior_refine import RefinedPose, RefineOptions, refine_axis_scale
 from r2s.geometry.prior_silhouette import SilhouetteFitOptions, fit_priors_to_view
-from r2s.geometry.plane import PlaneFit, fit_support_plane, signed_distance, \
+from r2s.geometry.plane import FLOATING_M, PlaneFit, fit_support_plane, signed_distance, \
     standing_gap_m
 from r2s.geometry.registration import (IcpOptions, RegistrationResult, register_prior,
                                        surface_fit, voxel_downsample)
@@ -103,8 +103,8 @@ class Options(StageOptions):
         "float above the largest (the floor seen past the table's edge is not the table); "
         "the support is the one they stand on; 1 = always the largest plane.")
     plane_floating_m: float = Field(
-        0.05, gt=0, description="The objects' gap above the largest plane (a quarter of the "
-        "objects' lowest points are farther) at which other planes are tried, and above "
+        FLOATING_M, gt=0, description="The objects' gap above the largest plane (a quarter of "
+        "the objects' lowest points are farther) at which other planes are tried, and above "
         "the support at which the result is flagged.")
     drop_foreign_rim: bool = Field(
         True, description="Drop mask rim pixels on the far side of a depth jump (a mask "
