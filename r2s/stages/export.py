@@ -17,6 +17,7 @@ from typing import Literal, Optional
 import numpy as np
 from pydantic import Field
 
+from r2s.geometry.unsegmented import UNSEGMENTED_KEY
 from r2s.scene_model import corrected_input, corrected_state
 from r2s.errors import InputError, R2SError, StageError
 from r2s.io.declared_world import write_declared_world
@@ -170,6 +171,12 @@ def _observation(paths: ScenePaths, items: list[ObjectItem], opt: Options, model
         init_poses = {o.id: o.pose for o in init.objects}
     earlier = {item.id: str(item.extra[OBSERVATION_FLAG_KEY]) for item in items
                if item.extra.get(OBSERVATION_FLAG_KEY)}
+    if init_poses is not None:  # objects that may rest on something no mask covers
+        for region in getattr(init, UNSEGMENTED_KEY, None) or []:
+            why = (f"may rest on an unmasked thing {1000 * region['height_m']:.0f} mm tall "
+                   "that the twin leaves out")
+            for i in region.get("rests_on_it", []):
+                earlier[i] = f"{earlier[i]}; {why}" if i in earlier else why
     for item in items:
         item.extra.pop(OBSERVATION_FLAG_KEY, None)
         seen = item.extra.pop(SEEN_POSE_KEY, None)  # physopt swapped in init's completion

@@ -76,6 +76,8 @@ from r2s.geometry.plane import FLOATING_M, PlaneFit, fit_support_plane, signed_d
     standing_gap_m
 from r2s.geometry.registration import (IcpOptions, RegistrationResult, register_prior,
                                        surface_fit, voxel_downsample)
+from r2s.geometry.unsegmented import MIN_HEIGHT_M as UNSEGMENTED_MIN_HEIGHT_M
+from r2s.geometry.unsegmented import UNSEGMENTED_KEY, unsegmented_regions
 from r2s.scene_model import corrected_input
 from r2s.io.atomic import atomic_write_bytes
 from r2s.io.input_scene import InputScene, ObjectSpec, load_input
@@ -279,6 +281,11 @@ class Options(StageOptions):
                                "mask has at least this many pixels; source 'silhouette', "
                                "with a warning (see geometry/silhouette_completion.py). "
                                "0 = never: such instances are left out.")
+    find_unsegmented: bool = Field(True, description="Look for unmasked things standing on "
+                                   "the table (a segmenter's missed objects; "
+                                   "r2s/geometry/unsegmented.py): a warning line each, "
+                                   "listed in state.json, and the objects that may rest on "
+                                   "one flagged in the export.")
     support_points_max: int = Field(20000, ge=100, description="Most support-plane points "
                                     "kept in support_points.npy.")
     seed: int = Field(0, description="Random seed (RANSAC, subsampling).")
@@ -333,6 +340,42 @@ def _support_flags(plane: PlaneFit, observed: dict, o: Options) -> list[str]:
     return [f"support plane: the objects' lowest points are {1000 * gap_m:.0f} mm or more "
             "above it (three quarters of the objects): the table they stand on may not be in "
             "view, or may not be level"]
+
+
+def _unsegmented(scene: InputScene, plane: PlaneFit, observed: dict, o: Options
+                 ) -> tuple[list[dict], list[str]]:
+    """Unmasked things standing on the table (r2s/geometry/unsegmented.py): their records
+    for the state (``rests_on_it``: the touching objects whose lowest observed points are
+    above the table and no higher than the region's top, so that it may carry them) and a
+    warning line for each of the largest three."""
+    if not o.find_unsegmented:
+        return [], []
+    cam = scene.camera
+    regions = unsegmented_regions(scene.depth_m, cam.K, cam.world_from_camera, scene.masks,
+                                  plane.point, plane.normal)
+    records, lines = [], []
+    for k, r in enumerate(regions):
+        carried = []
+        for i in r.touching_ids:
+            pts = observed.get(i, (np.zeros((0, 3)),))[0]
+            if len(pts) == 0:
+                continue
+            low = float(np.percentile(signed_distance(pts, plane.point, plane.normal), 1))
+            if UNSEGMENTED_MIN_HEIGHT_M < low <= r.height_m + UNSEGMENTED_MIN_HEIGHT_M:
+                carried.append(i)
+        records.append({"area_px": r.area_px, "box_px": list(r.box_px),
+                        "height_m": round(r.height_m, 4),
+                        "centre_world": [round(float(v), 5) for v in r.centre_world],
+                        "touching_ids": list(r.touching_ids), "rests_on_it": carried})
+        if k < 3:
+            what = (f"; object{'s' if len(carried) > 1 else ''} "
+                    f"{', '.join(map(str, carried))} may rest on it and be reconstructed as "
+                    "if on the table" if carried else "")
+            lines.append(f"unsegmented: {r.describe()}: an object without a mask? It is left "
+                         f"out of the twin{what}")
+    if len(regions) > 3:
+        lines.append(f"unsegmented: {len(regions) - 3} more such regions (init/state.json)")
+    return records, lines
 
 
 def _object_points(scene: InputScene, obj_id: int, o: Options, plane: PlaneFit
@@ -804,6 +847,8 @@ def run(ctx: StageContext) -> dict:
     observed = {spec.id: _object_points(scene, spec.id, o, plane) for spec in scene.objects}
     # probably-wrong inputs and results, one line each
     flags: list[str] = list(scene.warnings) + _support_flags(plane, observed, o)
+    unsegmented, lines = _unsegmented(scene, plane, observed, o)
+    flags += lines
     table_extent_m = sanity.robust_extent_m(support)
     priors, shapes = _register_or_complete(scene, observed, plane, o, flags, ctx.progress)
     ctx.progress("fit priors to the view", 0.8)
@@ -846,7 +891,8 @@ def run(ctx: StageContext) -> dict:
                                               [ob.id for ob in objects], zoom_to_px=1000,
                                               labels={ob.id: ob.label for ob in objects})))
     write_state(out, SceneState(stage="init", gravity=list(DEFAULT_GRAVITY),
-                                support=_support_plane(plane), objects=objects))
+                                support=_support_plane(plane), objects=objects,
+                                **({UNSEGMENTED_KEY: unsegmented} if unsegmented else {})))
     ctx.progress("done", 1.0)
     finite = [r for r in rmses if np.isfinite(r)]
     fitnesses = [float(ob.icp_fitness) for ob in objects if ob.source != "silhouette"]
@@ -858,6 +904,7 @@ def run(ctx: StageContext) -> dict:
         "mean_icp_rmse_mm": round(1000 * float(np.mean(finite)), 3) if finite else None,
         "min_fitness": round(min(fitnesses), 4) if fitnesses else None,
         "support_inlier_fraction": round(float(plane.inliers.mean()), 4),
+        "unsegmented_regions": len(unsegmented),
         "skipped": [i for i in scene.skipped_ids if i not in {ob.id for ob in objects}],
         "flags": flags,
     }
