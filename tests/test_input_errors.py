@@ -36,6 +36,12 @@ def _break_nan_depth(inp: Path) -> None:
     np.save(inp / "depth.npy", np.full((48, 64), np.nan, np.float32))
 
 
+def _break_depth_8bit(inp: Path) -> None:
+    # a depth visualisation saved as 8-bit grey instead of the 16-bit depth
+    (inp / "depth.npy").unlink(missing_ok=True)
+    Image.fromarray(np.full((48, 64), 120, np.uint8)).save(inp / "depth.png")
+
+
 def _break_bad_json(inp: Path) -> None:
     (inp / "camera.json").write_text('{"width": 64, "height": 48,, }')
 
@@ -67,6 +73,7 @@ CASES = [
     (_break_wrong_size, "masks.png", "wrong size"),
     (_break_empty_mask, "masks.png", "no instance"),
     (_break_nan_depth, "depth.npy", "no valid depth"),
+    (_break_depth_8bit, "depth.png", "8-bit"),
     (_break_bad_json, "camera.json", "bad JSON"),
     (_break_camera_pose, "camera.json", "rotation"),
     (_break_unreadable_mesh, "1.glb", "unreadable mesh"),

@@ -326,6 +326,10 @@ def load_depth_file(png: Path, npy: Path, width: int, height: int,
         arr = np.asarray(img)
         if arr.ndim != 2 or arr.dtype not in (np.uint16, np.int32, np.uint8):
             raise InputError(path, f"expected a 16-bit single-channel PNG, got mode {img.mode}")
+        if arr.dtype == np.uint8:
+            raise InputError(path, "expected a 16-bit single-channel PNG, got an 8-bit one: "
+                             f"8 bits hold at most 255 depth units ({255 * depth_unit_m:g} m "
+                             "with depth_unit_m in camera.json); a depth visualisation?")
         depth = arr.astype(np.float32) * np.float32(depth_unit_m)
     else:
         raise InputError(png, f"missing file (neither {png.name} nor {npy.name} exists)")
