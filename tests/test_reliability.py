@@ -393,6 +393,26 @@ def test_depth_unit_of_one_metre_is_refused(tmp_path: Path):
     assert not (scene / "init").exists()
 
 
+def test_intrinsics_of_another_image_size_are_warned_about(tmp_path: Path):
+    scene = write_two_boxes(tmp_path / "scene")
+    assert load_input(scene).warnings == []
+    cam_file = scene / "input" / "camera.json"
+    cam = json.loads(cam_file.read_text())
+    w, h = cam["width"], cam["height"]
+    cam["K"] = (np.asarray(cam["K"]) * [[2], [2], [1]]).tolist()  # K of a 2x larger image
+    cam_file.write_text(json.dumps(cam))
+    warnings = load_input(scene).warnings
+    assert len(warnings) == 1 and "principal point" in warnings[0]
+    assert f"K scaled by 0.50 (K of a {2 * w} x {2 * h} image)" in warnings[0]
+    # a crop: K of the right size, its principal point 30 % of the width left of centre
+    cam["K"] = [[cam["K"][0][0] / 2, 0, (w - 1) / 2 - 0.3 * w],
+                [0, cam["K"][1][1] / 2, (h - 1) / 2], [0, 0, 1]]
+    cam_file.write_text(json.dumps(cam))
+    warnings = load_input(scene).warnings
+    assert len(warnings) == 1 and "unless the image was cropped" in warnings[0]
+    assert "K scaled by" not in warnings[0]
+
+
 def test_both_depth_files(tmp_path: Path):
     scene = write_two_boxes(tmp_path / "scene")
     png = np.asarray(Image.open(scene / "input" / "depth.png"), dtype=np.float32) * 0.001

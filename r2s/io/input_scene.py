@@ -285,6 +285,33 @@ def _read_image(path: Path) -> Image.Image:
     return img
 
 
+PRINCIPAL_POINT_OFF_CENTRE = 0.15
+"""A principal point farther than this fraction of the width (or height) from the image
+centre is warned about: a camera's lies within a few % of it, unless the image was cropped."""
+
+
+def check_principal_point(path: Path, camera: Camera) -> list[str]:
+    """A warning line when K's principal point is far from the image centre, the mark of a
+    K for another image size (a RealSense's 1280 x 720 intrinsics with its 640 x 480
+    images, say), which shrinks or stretches every object across the view."""
+    cx, cy = float(camera.K[0, 2]), float(camera.K[1, 2])
+    mid_x, mid_y = (camera.width - 1) / 2, (camera.height - 1) / 2
+    off_x, off_y = abs(cx - mid_x) / camera.width, abs(cy - mid_y) / camera.height
+    if max(off_x, off_y) <= PRINCIPAL_POINT_OFF_CENTRE:
+        return []
+    line = (f"{path}: K's principal point ({cx:.1f}, {cy:.1f}) lies {100 * off_x:.0f} % of the "
+            f"width and {100 * off_y:.0f} % of the height from the image centre ({mid_x:.1f}, "
+            f"{mid_y:.1f}); a camera's lies within a few %, unless the image was cropped")
+    if cx > 0 and cy > 0:
+        sx, sy = mid_x / cx, mid_y / cy
+        if abs(sx / sy - 1.0) < 0.05:
+            scale = (sx + sy) / 2
+            line += (f". Is K for another image size? K scaled by {scale:.2f} (K of a "
+                     f"{camera.width / scale:.0f} x {camera.height / scale:.0f} image) would "
+                     "centre it")
+    return [line]
+
+
 def load_rgb(path: Path, width: int, height: int) -> np.ndarray:
     img = _read_image(path)
     if img.mode not in ("RGB", "RGBA", "L", "P"):
@@ -410,7 +437,8 @@ def load_input(scene_dir: Path) -> InputScene:
     w, h = camera.width, camera.height
     rgb = load_rgb(paths.rgb, w, h)
     depth = load_depth(paths, w, h, depth_unit_m)
-    warnings = check_depth_files(paths, depth, w, h, depth_unit_m)
+    warnings = check_principal_point(paths.camera, camera)
+    warnings += check_depth_files(paths, depth, w, h, depth_unit_m)
     warnings += check_depth_range(paths.depth_npy if paths.depth_npy.is_file() else paths.depth_png,
                                   depth, depth_unit_m)
     masks = load_masks(paths.masks, w, h)
