@@ -65,6 +65,12 @@ class RepairSettings(BaseModel):
                           "damped rest may not carry an object beyond it); the unbounded "
                           "repairs run only when that leaves an object failing the judge "
                           "(see r2s.physopt.repair.verify_and_repair).")
+    foot_height_m: float = Field(
+        0.0, ge=0, description="Objects that move in the first check get a flat foot: "
+                               "the slice of their collision pieces this far above their "
+                               "lowest point, projected down to it (r2s/physopt/"
+                               "contact_foot.py; the visual mesh is untouched; 0: off, the "
+                               "default: measured, no gain; docs/physopt.md).")
     fallback_severity: float = Field(
         0.5, gt=0, description="The unbounded repairs run when an object's check drift is at "
                                "least this fraction of the judge's criterion after the "

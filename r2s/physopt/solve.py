@@ -14,10 +14,11 @@ import numpy as np
 
 from r2s.console import ProgressFn
 from r2s.io.state import SceneState
+from r2s.physopt.contact_foot import with_foot
 from r2s.physopt.object_opt import optimise_objects
 from r2s.physopt.observation_bound import ObservationBound, displacement_flags
 from r2s.physopt.params import Drift, Params
-from r2s.physopt.repair import depenetrate_scene, verify_and_repair, world_factory
+from r2s.physopt.repair import check, depenetrate_scene, verify_and_repair, world_factory
 from r2s.physical.provenance import com_provenance, friction_provenance
 
 
@@ -42,6 +43,8 @@ def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
     if opt.use_diffsim:
         free = [i for i in order if params[i].movable]
         params = optimise_objects(params, meshes, state, free, opt, log, progress)
+    if opt.foot_height_m > 0:
+        give_feet(make_world, pieces, params, [o.id for o in state.objects], state, opt, log)
     centres = {i: m.centroid for i, m in meshes.items()}
     bound = ObservationBound(seen, centres, opt.observation_tolerance_m,
                              opt.observation_tolerance_deg) if opt.observation_bound else None
@@ -53,6 +56,29 @@ def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
                                   opt.observation_tolerance_deg)
     log["observation_flags"] = {str(i): reason for i, reason in flags.items()}
     return Solved(params, drift, flags)
+
+
+def give_feet(make_world, pieces: dict, params: Params, export_order: list[int],
+              state: SceneState, opt, log: dict) -> None:
+    """The objects that move in a first check get a flat foot under their lowest point
+    (:mod:`r2s.physopt.contact_foot`), in ``pieces`` in place (the checks, and export, use
+    them); ``log["feet"]``: id -> the foot's area, mm^2."""
+    orders = [export_order, export_order[::-1]] if len(export_order) > 1 else [export_order]
+    movers = opt.moving(check(make_world, params, orders, opt.verify_duration_s))
+    up = -np.asarray(state.gravity, dtype=float)
+    feet = {}
+    for i in movers:
+        if not params[i].movable:
+            continue
+        footed, area = with_foot(pieces[i], params[i].world_from_object, up,
+                                 opt.foot_height_m)
+        if area > 0:
+            pieces[i] = footed
+            feet[str(i)] = round(area * 1e6, 1)
+            log["objects"][i].append(f"foot of {area * 1e6:.0f} mm^2 under its lowest point")
+    if feet:
+        make_world.checked.clear()  # the rollouts remembered were of the footless pieces
+    log["feet"] = feet
 
 
 def repair_bounded_then_free(make_world, params: Params, order: list[int],
