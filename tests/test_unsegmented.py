@@ -95,11 +95,13 @@ def test_an_object_stacked_on_an_unmasked_one_is_named(monkeypatch):
     plane, _ = init_stage._fit_support(scene, options)
     observed = {o.id: init_stage._object_points(scene, o.id, options, plane)
                 for o in scene.objects}
-    records, lines = init_stage._unsegmented(scene, plane, observed, options)
+    lines: list[str] = []
+    records = init_stage._unsegmented(scene, plane, observed, options, lines)["unsegmented"]
     assert len(records) == 1 and len(lines) == 1
     assert 2 in records[0]["touching_ids"]
     assert records[0]["rests_on_it"] == [2]
     assert records[0]["height_m"] == pytest.approx(0.05, abs=0.003)
     assert lines[0].startswith("unsegmented: ") and "object 2 may rest on it" in lines[0]
     off = init_stage.Options(find_unsegmented=False)
-    assert init_stage._unsegmented(scene, plane, observed, off) == ([], [])
+    assert init_stage._unsegmented(scene, plane, observed, off, lines) == {}
+    assert len(lines) == 1

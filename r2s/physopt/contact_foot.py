@@ -68,8 +68,6 @@ def with_foot(pieces: list[trimesh.Trimesh], world_from_object: np.ndarray, up: 
         except Exception:  # degenerate hull (qhull): keep the piece as it was
             out.append(piece)
             continue
-        bottom = hull.faces[(hull.face_normals @ -up_obj) > 0.999]
-        area += float(hull.area_faces[(hull.face_normals @ -up_obj) > 0.999].sum()) \
-            if len(bottom) else 0.0
+        area += float(hull.area_faces[(hull.face_normals @ -up_obj) > 0.999].sum())
         out.append(hull)
     return out, area

@@ -342,14 +342,15 @@ def _support_flags(plane: PlaneFit, observed: dict, o: Options) -> list[str]:
             "view, or may not be level"]
 
 
-def _unsegmented(scene: InputScene, plane: PlaneFit, observed: dict, o: Options
-                 ) -> tuple[list[dict], list[str]]:
-    """Unmasked things standing on the table (r2s/geometry/unsegmented.py): their records
-    for the state (``rests_on_it``: the touching objects whose lowest observed points are
-    above the table and no higher than the region's top, so that it may carry them) and a
-    warning line for each of the largest three."""
+def _unsegmented(scene: InputScene, plane: PlaneFit, observed: dict, o: Options,
+                 flags: list[str]) -> dict[str, list[dict]]:
+    """Unmasked things standing on the table (r2s/geometry/unsegmented.py): the state's
+    extra key with their records (``rests_on_it``: the touching objects whose lowest
+    observed points are above the table and no higher than the region's top, so that it
+    may carry them; none found: no key), and a warning line in ``flags`` for each of the
+    largest three."""
     if not o.find_unsegmented:
-        return [], []
+        return {}
     cam = scene.camera
     regions = unsegmented_regions(scene.depth_m, cam.K, cam.world_from_camera, scene.masks,
                                   plane.point, plane.normal)
@@ -375,7 +376,8 @@ def _unsegmented(scene: InputScene, plane: PlaneFit, observed: dict, o: Options
                          f"out of the twin{what}")
     if len(regions) > 3:
         lines.append(f"unsegmented: {len(regions) - 3} more such regions (init/state.json)")
-    return records, lines
+    flags += lines
+    return {UNSEGMENTED_KEY: records} if records else {}
 
 
 def _object_points(scene: InputScene, obj_id: int, o: Options, plane: PlaneFit
@@ -847,8 +849,7 @@ def run(ctx: StageContext) -> dict:
     observed = {spec.id: _object_points(scene, spec.id, o, plane) for spec in scene.objects}
     # probably-wrong inputs and results, one line each
     flags: list[str] = list(scene.warnings) + _support_flags(plane, observed, o)
-    unsegmented, lines = _unsegmented(scene, plane, observed, o)
-    flags += lines
+    unsegmented = _unsegmented(scene, plane, observed, o, flags)
     table_extent_m = sanity.robust_extent_m(support)
     priors, shapes = _register_or_complete(scene, observed, plane, o, flags, ctx.progress)
     ctx.progress("fit priors to the view", 0.8)
@@ -891,8 +892,7 @@ def run(ctx: StageContext) -> dict:
                                               [ob.id for ob in objects], zoom_to_px=1000,
                                               labels={ob.id: ob.label for ob in objects})))
     write_state(out, SceneState(stage="init", gravity=list(DEFAULT_GRAVITY),
-                                support=_support_plane(plane), objects=objects,
-                                **({UNSEGMENTED_KEY: unsegmented} if unsegmented else {})))
+                                support=_support_plane(plane), objects=objects, **unsegmented))
     ctx.progress("done", 1.0)
     finite = [r for r in rmses if np.isfinite(r)]
     fitnesses = [float(ob.icp_fitness) for ob in objects if ob.source != "silhouette"]
@@ -904,7 +904,7 @@ def run(ctx: StageContext) -> dict:
         "mean_icp_rmse_mm": round(1000 * float(np.mean(finite)), 3) if finite else None,
         "min_fitness": round(min(fitnesses), 4) if fitnesses else None,
         "support_inlier_fraction": round(float(plane.inliers.mean()), 4),
-        "unsegmented_regions": len(unsegmented),
+        "unsegmented_regions": len(unsegmented.get(UNSEGMENTED_KEY, [])),
         "skipped": [i for i in scene.skipped_ids if i not in {ob.id for ob in objects}],
         "flags": flags,
     }
