@@ -96,12 +96,31 @@ def test_an_object_stacked_on_an_unmasked_one_is_named(monkeypatch):
     observed = {o.id: init_stage._object_points(scene, o.id, options, plane)
                 for o in scene.objects}
     lines: list[str] = []
-    records = init_stage._unsegmented(scene, plane, observed, options, lines)["unsegmented"]
+    extra, pixels = init_stage._unsegmented(scene, plane, observed, options, lines)
+    records = extra["unsegmented"]
+    assert pixels.shape == scene.masks.shape and pixels.sum() == records[0]["area_px"]
     assert len(records) == 1 and len(lines) == 1
     assert 2 in records[0]["touching_ids"]
     assert records[0]["rests_on_it"] == [2]
     assert records[0]["height_m"] == pytest.approx(0.05, abs=0.003)
     assert lines[0].startswith("unsegmented: ") and "object 2 may rest on it" in lines[0]
     off = init_stage.Options(find_unsegmented=False)
-    assert init_stage._unsegmented(scene, plane, observed, off, lines) == {}
+    assert init_stage._unsegmented(scene, plane, observed, off, lines) == ({}, None)
     assert len(lines) == 1
+
+
+def test_the_fit_picture_tints_and_outlines_the_unmasked_pixels():
+    from r2s.geometry.overlay import UNMASKED_COLOR, fit_overlay
+
+    rgb = np.full((40, 60, 3), 100, np.uint8)
+    masks = np.zeros((40, 60), np.int32)
+    masks[5:15, 5:15] = 1
+    rendered = np.where(masks == 1, 0, -1)
+    unmasked = np.zeros((40, 60), bool)
+    unmasked[20:35, 30:50] = True
+    plain = fit_overlay(rgb, rendered, masks, [1])
+    marked = fit_overlay(rgb, rendered, masks, [1], unmasked=unmasked)
+    assert np.array_equal(plain[~unmasked], marked[~unmasked])
+    assert (marked[20, 30] == UNMASKED_COLOR).all()  # the outline
+    inside = marked[27, 40].astype(float)  # tinted: 0.6 grey + 0.4 magenta
+    assert inside == pytest.approx(0.6 * 100 + 0.4 * UNMASKED_COLOR, abs=1)

@@ -52,9 +52,14 @@ def crop_box(masks: list[np.ndarray], margin: float = 0.2, min_margin_px: int = 
             max(cols.min() - pc, 0), min(cols.max() + pc + 1, width))
 
 
+UNMASKED_COLOR = np.array([255.0, 0.0, 255.0])
+"""Magenta: things on the table that no mask covers."""
+
+
 def fit_overlay(rgb: np.ndarray, rendered: np.ndarray, observed_masks: np.ndarray,
                 observed_ids: list[int], alpha: float = 0.35, zoom_to_px: int | None = None,
-                labels: dict[int, str] | None = None) -> np.ndarray:
+                labels: dict[int, str] | None = None,
+                unmasked: np.ndarray | None = None) -> np.ndarray:
     """(h, w, 3) uint8 picture of a fit.
 
     Parameters
@@ -68,17 +73,24 @@ def fit_overlay(rgb: np.ndarray, rendered: np.ndarray, observed_masks: np.ndarra
         factor, up to 4) so its longer side is about this many pixels.
     labels : when given, each object's id and label (``"3 mug"``) is written at the
         centroid of its observed mask (see :func:`label_anchors`).
+    unmasked : (H, W) bool, when given: pixels of things no mask covers (tinted and
+        outlined in magenta; r2s/geometry/unsegmented.py).
     """
+    if unmasked is None:
+        unmasked = np.zeros(observed_masks.shape, dtype=bool)
     if zoom_to_px is not None:
-        r0, r1, c0, c1 = crop_box([rendered >= 0, observed_masks > 0])
+        r0, r1, c0, c1 = crop_box([rendered >= 0, observed_masks > 0, unmasked])
         factor = int(np.clip(zoom_to_px // max(r1 - r0, c1 - c0), 1, 4))
 
         def zoom(a: np.ndarray) -> np.ndarray:
             return np.repeat(np.repeat(a[r0:r1, c0:c1], factor, axis=0), factor, axis=1)
 
         rgb, rendered, observed_masks = zoom(rgb), zoom(rendered), zoom(observed_masks)
+        unmasked = zoom(unmasked)
     out = rgb[:, :, :3].astype(np.float64).copy()
     line = max(1, int(round(min(rgb.shape[:2]) / 300)))
+    out[unmasked] = 0.6 * out[unmasked] + 0.4 * UNMASKED_COLOR
+    out[_outline(unmasked, line)] = UNMASKED_COLOR
     for k, obj_id in enumerate(observed_ids):
         color = PALETTE[k % len(PALETTE)].astype(np.float64)
         sil = rendered == k

@@ -47,7 +47,8 @@ class UnsegmentedRegion:
     area_px : its pixels; box_px : (row0, col0, row1, col1), inclusive;
     height_m : 95th percentile of its points' heights above the support plane;
     centre_world : (3,) mean of its points, world frame;
-    touching_ids : instance ids whose masks lie within ``2 * MARGIN_PX`` of it, sorted.
+    touching_ids : instance ids whose masks lie within ``2 * MARGIN_PX`` of it, sorted;
+    pixels : (H, W) bool, the region.
     """
 
     area_px: int
@@ -55,6 +56,7 @@ class UnsegmentedRegion:
     height_m: float
     centre_world: np.ndarray
     touching_ids: tuple[int, ...]
+    pixels: np.ndarray
 
     def describe(self) -> str:
         r0, c0, r1, c1 = self.box_px
@@ -125,5 +127,5 @@ def unsegmented_regions(depth_m: np.ndarray, K: np.ndarray, world_from_camera: n
         centre = (cam @ T[:3, :3].T + T[:3, 3]).mean(axis=0)
         out.append(UnsegmentedRegion(int(region.sum()), (int(rows.min()), int(cols.min()),
                                                          int(rows.max()), int(cols.max())),
-                                     top, centre, touching))
+                                     top, centre, touching, region))
     return sorted(out, key=lambda r: -r.area_px)

@@ -343,14 +343,14 @@ def _support_flags(plane: PlaneFit, observed: dict, o: Options) -> list[str]:
 
 
 def _unsegmented(scene: InputScene, plane: PlaneFit, observed: dict, o: Options,
-                 flags: list[str]) -> dict[str, list[dict]]:
+                 flags: list[str]) -> tuple[dict[str, list[dict]], np.ndarray | None]:
     """Unmasked things standing on the table (r2s/geometry/unsegmented.py): the state's
     extra key with their records (``rests_on_it``: the touching objects whose lowest
     observed points are above the table and no higher than the region's top, so that it
-    may carry them; none found: no key), and a warning line in ``flags`` for each of the
-    largest three."""
+    may carry them; none found: no key) and their pixels, (H, W) bool or None; a warning
+    line in ``flags`` for each of the largest three."""
     if not o.find_unsegmented:
-        return {}
+        return {}, None
     cam = scene.camera
     regions = unsegmented_regions(scene.depth_m, cam.K, cam.world_from_camera, scene.masks,
                                   plane.point, plane.normal)
@@ -377,7 +377,9 @@ def _unsegmented(scene: InputScene, plane: PlaneFit, observed: dict, o: Options,
     if len(regions) > 3:
         lines.append(f"unsegmented: {len(regions) - 3} more such regions (init/state.json)")
     flags += lines
-    return {UNSEGMENTED_KEY: records} if records else {}
+    if not records:
+        return {}, None
+    return {UNSEGMENTED_KEY: records}, np.any([r.pixels for r in regions], axis=0)
 
 
 def _object_points(scene: InputScene, obj_id: int, o: Options, plane: PlaneFit
@@ -849,7 +851,7 @@ def run(ctx: StageContext) -> dict:
     observed = {spec.id: _object_points(scene, spec.id, o, plane) for spec in scene.objects}
     # probably-wrong inputs and results, one line each
     flags: list[str] = list(scene.warnings) + _support_flags(plane, observed, o)
-    unsegmented = _unsegmented(scene, plane, observed, o, flags)
+    unsegmented, unmasked = _unsegmented(scene, plane, observed, o, flags)
     table_extent_m = sanity.robust_extent_m(support)
     priors, shapes = _register_or_complete(scene, observed, plane, o, flags, ctx.progress)
     ctx.progress("fit priors to the view", 0.8)
@@ -887,10 +889,10 @@ def run(ctx: StageContext) -> dict:
 
     ctx.progress("overlay", 0.95)
     rendered = render_instances(posed, cam.K, cam.world_from_camera, cam.width, cam.height)
-    atomic_write_bytes(out / "init.png",
-                       _png_bytes(fit_overlay(scene.rgb, rendered, scene.masks,
-                                              [ob.id for ob in objects], zoom_to_px=1000,
-                                              labels={ob.id: ob.label for ob in objects})))
+    picture = fit_overlay(scene.rgb, rendered, scene.masks, [ob.id for ob in objects],
+                          zoom_to_px=1000, labels={ob.id: ob.label for ob in objects},
+                          unmasked=unmasked)
+    atomic_write_bytes(out / "init.png", _png_bytes(picture))
     write_state(out, SceneState(stage="init", gravity=list(DEFAULT_GRAVITY),
                                 support=_support_plane(plane), objects=objects, **unsegmented))
     ctx.progress("done", 1.0)
