@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from r2s.geometry.camera import rays_per_depth
+from r2s.geometry.camera import backproject
+from r2s.geometry.plane import signed_distance
 
 MIN_HEIGHT_M = 0.015
 """A background pixel this far above the support counts as standing on it (RealSense-class
@@ -69,17 +70,10 @@ class UnsegmentedRegion:
 def height_map_m(depth_m: np.ndarray, K: np.ndarray, world_from_camera: np.ndarray,
                  plane_point: np.ndarray, plane_normal: np.ndarray) -> np.ndarray:
     """(H, W) height of each pixel's observed point above the plane, m (NaN: no reading)."""
-    h, w = depth_m.shape
-    rows, cols = np.mgrid[0:h, 0:w]
-    rays = rays_per_depth(np.stack([rows.ravel(), cols.ravel()], axis=1), K)
-    z = np.asarray(depth_m, dtype=np.float64).ravel()
-    valid = np.isfinite(z) & (z > 0)
-    cam = rays * np.where(valid, z, 0.0)[:, None]
-    T = np.asarray(world_from_camera, dtype=np.float64)
-    world = cam @ T[:3, :3].T + T[:3, 3]
-    n = np.asarray(plane_normal, dtype=np.float64)
-    height = (world - np.asarray(plane_point, dtype=np.float64)) @ n
-    return np.where(valid, height, np.nan).reshape(h, w)
+    points, pixels = backproject(depth_m, K, world_from_camera, return_pixels=True)
+    height = np.full(np.shape(depth_m), np.nan)
+    height[pixels[:, 0], pixels[:, 1]] = signed_distance(points, plane_point, plane_normal)
+    return height
 
 
 def unsegmented_regions(depth_m: np.ndarray, K: np.ndarray, world_from_camera: np.ndarray,
@@ -109,7 +103,6 @@ def unsegmented_regions(depth_m: np.ndarray, K: np.ndarray, world_from_camera: n
     if count == 0:
         return []
     areas = np.bincount(labels.ravel(), minlength=count + 1)
-    T = np.asarray(world_from_camera, dtype=np.float64)
     out = []
     for lab in np.flatnonzero(areas >= min_area_px):
         if lab == 0:
@@ -122,9 +115,7 @@ def unsegmented_regions(depth_m: np.ndarray, K: np.ndarray, world_from_camera: n
         rows, cols = np.nonzero(region)
         ring = ndimage.binary_dilation(region, iterations=2 * margin_px) & (masks > 0)
         touching = tuple(sorted(int(i) for i in np.unique(masks[ring])))
-        pix = np.stack([rows, cols], axis=1)
-        cam = rays_per_depth(pix, K) * np.asarray(depth_m, dtype=np.float64)[rows, cols][:, None]
-        centre = (cam @ T[:3, :3].T + T[:3, 3]).mean(axis=0)
+        centre = backproject(depth_m, K, world_from_camera, region).mean(axis=0)
         out.append(UnsegmentedRegion(int(region.sum()), (int(rows.min()), int(cols.min()),
                                                          int(rows.max()), int(cols.max())),
                                      top, centre, touching, region))

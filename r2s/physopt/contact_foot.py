@@ -23,23 +23,11 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from r2s.geometry.collision_trim import capped_hull
+from r2s.physopt.piece_overlap import plane_crossings
+
 FOOT_HEIGHT_M = 0.002
 """Default slice height above the lowest point."""
-
-
-def _section_points(piece: trimesh.Trimesh, origin: np.ndarray, normal: np.ndarray
-                    ) -> np.ndarray:
-    """(K, 3) points where the piece's edges cross the plane (object frame)."""
-    v = np.asarray(piece.vertices, dtype=np.float64)
-    edges = np.asarray(piece.edges_unique)
-    d = (v - origin) @ normal
-    a, b = d[edges[:, 0]], d[edges[:, 1]]
-    cross = (a < 0) != (b < 0)
-    if not cross.any():
-        return np.zeros((0, 3))
-    e = edges[cross]
-    t = (a[cross] / (a[cross] - b[cross]))[:, None]
-    return v[e[:, 0]] + t * (v[e[:, 1]] - v[e[:, 0]])
 
 
 def with_foot(pieces: list[trimesh.Trimesh], world_from_object: np.ndarray, up: np.ndarray,
@@ -58,14 +46,12 @@ def with_foot(pieces: list[trimesh.Trimesh], world_from_object: np.ndarray, up: 
         if h.min() > low + height_m or h.max() <= low + height_m:
             out.append(piece)
             continue
-        section = _section_points(piece, up_obj * (low + height_m), up_obj)
-        if len(section) < 3:
-            out.append(piece)
-            continue
+        section = plane_crossings(piece, h - (low + height_m))
         base = section - np.outer(section @ up_obj - low, up_obj)
-        try:
-            hull = trimesh.convex.convex_hull(np.vstack([piece.vertices, base]))
-        except Exception:  # degenerate hull (qhull): keep the piece as it was
+        points = np.vstack([piece.vertices, base])
+        # not capped: the disc's corners would be the first dropped (they hold little volume)
+        hull = capped_hull(points, max_vertices=len(points)) if len(section) >= 3 else None
+        if hull is None:  # degenerate: keep the piece as it was
             out.append(piece)
             continue
         area += float(hull.area_faces[(hull.face_normals @ -up_obj) > 0.999].sum())

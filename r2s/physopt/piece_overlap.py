@@ -292,13 +292,19 @@ def _clipped_vertices(piece: trimesh.Trimesh, heights: np.ndarray) -> np.ndarray
     """(K, 3) corners of a convex piece clipped to ``heights >= 0`` (heights: (V,) signed
     distances of its vertices to the cutting plane): the vertices kept and the points where
     its edges cross the plane."""
+    return np.vstack([np.asarray(piece.vertices)[heights >= 0], plane_crossings(piece, heights)])
+
+
+def plane_crossings(piece: trimesh.Trimesh, heights: np.ndarray) -> np.ndarray:
+    """(K, 3) points where the piece's edges cross a plane (``heights``: (V,) signed
+    distances of its vertices to it), in the piece's frame."""
     vertices = np.asarray(piece.vertices)
     edges = np.asarray(piece.edges_unique)
     ha, hb = heights[edges[:, 0]], heights[edges[:, 1]]
     crossing = (ha < 0) != (hb < 0)
     t = ha[crossing] / (ha[crossing] - hb[crossing])
     a, b = vertices[edges[crossing, 0]], vertices[edges[crossing, 1]]
-    return np.vstack([vertices[heights >= 0], a + t[:, None] * (b - a)])
+    return a + t[:, None] * (b - a)
 
 
 def _without_empty(cut: list, uncut: list[trimesh.Trimesh]) -> list[trimesh.Trimesh]:
