@@ -11,6 +11,7 @@ table is not.
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -76,6 +77,16 @@ def test_an_unmasked_box_is_found_where_it_stands():
     # the box stands at (-0.09, 0.06); the region's points are its visible faces
     assert np.linalg.norm(region.centre_world[:2] - [-0.09, 0.06]) < 0.02
     assert 1 not in region.touching_ids
+    # the box standing on the table that holds what was seen: the 80 x 60 x 50 mm box at
+    # yaw 20 deg (its top face is seen whole; 1st-99th percentiles across)
+    size = np.sort(region.size_m[:2])[::-1]
+    assert size == pytest.approx([0.08, 0.06], abs=0.006)
+    assert region.size_m[2] == pytest.approx(0.05, abs=0.003)
+    long_axis = region.world_from_box[:3, 0] if region.size_m[0] >= region.size_m[1] \
+        else region.world_from_box[:3, 1]
+    yaw = np.degrees(np.arctan2(long_axis[1], long_axis[0])) % 180.0
+    assert yaw == pytest.approx(20.0, abs=5.0)
+    assert region.world_from_box[:3, 3] == pytest.approx([-0.09, 0.06, 0.025], abs=0.006)
 
 
 def test_an_object_stacked_on_an_unmasked_one_is_named(monkeypatch):
@@ -124,3 +135,17 @@ def test_the_fit_picture_tints_and_outlines_the_unmasked_pixels():
     assert (marked[20, 30] == UNMASKED_COLOR).all()  # the outline
     inside = marked[27, 40].astype(float)  # tinted: 0.6 grey + 0.4 magenta
     assert inside == pytest.approx(0.6 * 100 + 0.4 * UNMASKED_COLOR, abs=1)
+
+
+def test_the_export_file_lists_the_boxes(tmp_path):
+    from r2s.io.unmodelled import UNMODELLED_FILE, write_unmodelled
+
+    record = {"area_px": 500, "box_px": [1, 2, 3, 4], "height_m": 0.05,
+              "centre_world": [0.0, 0.0, 0.02], "touching_ids": [2], "rests_on_it": [],
+              "world_from_box": np.eye(4).tolist(), "size_m": [0.08, 0.06, 0.05]}
+    write_unmodelled(tmp_path, [record])
+    data = json.loads((tmp_path / UNMODELLED_FILE).read_text())
+    assert data["format"] == "r2s-unmodelled" and data["version"] == 1
+    (region,) = data["regions"]
+    assert region["size_m"] == [0.08, 0.06, 0.05] and region["world_from_box"] == np.eye(4).tolist()
+    assert "centre_world" not in region and region["touching_ids"] == [2]

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import ConvexHull, QhullError
 
 from r2s.geometry.camera import backproject
 from r2s.geometry.plane import signed_distance
@@ -49,7 +50,9 @@ class UnsegmentedRegion:
     height_m : 95th percentile of its points' heights above the support plane;
     centre_world : (3,) mean of its points, world frame;
     touching_ids : instance ids whose masks lie within ``2 * MARGIN_PX`` of it, sorted;
-    pixels : (H, W) bool, the region.
+    pixels : (H, W) bool, the region;
+    world_from_box, size_m : (4, 4) and (3,): the box that stands on the support and holds
+        the region's points (:func:`standing_box`), the least a planner should avoid.
     """
 
     area_px: int
@@ -58,6 +61,8 @@ class UnsegmentedRegion:
     centre_world: np.ndarray
     touching_ids: tuple[int, ...]
     pixels: np.ndarray
+    world_from_box: np.ndarray
+    size_m: np.ndarray
 
     def describe(self) -> str:
         r0, c0, r1, c1 = self.box_px
@@ -115,8 +120,50 @@ def unsegmented_regions(depth_m: np.ndarray, K: np.ndarray, world_from_camera: n
         rows, cols = np.nonzero(region)
         ring = ndimage.binary_dilation(region, iterations=2 * margin_px) & (masks > 0)
         touching = tuple(sorted(int(i) for i in np.unique(masks[ring])))
-        centre = backproject(depth_m, K, world_from_camera, region).mean(axis=0)
+        points = backproject(depth_m, K, world_from_camera, region)
+        box, size = standing_box(points, plane_point, plane_normal)
         out.append(UnsegmentedRegion(int(region.sum()), (int(rows.min()), int(cols.min()),
                                                          int(rows.max()), int(cols.max())),
-                                     top, centre, touching, region))
+                                     top, points.mean(axis=0), touching, region, box, size))
     return sorted(out, key=lambda r: -r.area_px)
+
+
+def standing_box(points: np.ndarray, plane_point: np.ndarray, plane_normal: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The box that stands on the plane and holds (N, 3) world ``points`` (1st to 99th
+    percentile across, up to the 99th of the heights), turned about the normal as the
+    least-area rectangle around the points' footprint: ``world_from_box`` (4, 4), box frame at its centre with z along
+    the normal, and ``size_m`` (3,). Only what the camera saw: the side facing away from it
+    may reach farther."""
+    n = np.asarray(plane_normal, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    rel = np.asarray(points, dtype=np.float64) - np.asarray(plane_point, dtype=np.float64)
+    axis = _least_area_direction(np.stack([rel @ u, rel @ v], axis=1))
+    a = axis[0] * u + axis[1] * v
+    b = np.cross(n, a)
+    lo_a, hi_a = np.percentile(rel @ a, [1, 99])
+    lo_b, hi_b = np.percentile(rel @ b, [1, 99])
+    top = max(float(np.percentile(rel @ n, 99)), 1e-3)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([a, b, n], axis=1)
+    T[:3, 3] = (np.asarray(plane_point, dtype=np.float64) + a * (lo_a + hi_a) / 2
+                + b * (lo_b + hi_b) / 2 + n * top / 2)
+    return T, np.array([hi_a - lo_a, hi_b - lo_b, top])
+
+
+def _least_area_direction(uv: np.ndarray) -> np.ndarray:
+    """(2,) unit direction of one side of the least-area rectangle holding the (N, 2)
+    points (one side of it lies along an edge of their convex hull)."""
+    try:
+        hull = uv[ConvexHull(uv).vertices]
+    except (QhullError, ValueError):  # collinear or too few points
+        return np.array([1.0, 0.0])
+    edges = np.roll(hull, -1, axis=0) - hull
+    dirs = edges / np.maximum(np.linalg.norm(edges, axis=1, keepdims=True), 1e-12)
+    along = hull @ dirs.T  # (hull points, directions)
+    across = hull @ np.stack([-dirs[:, 1], dirs[:, 0]], axis=1).T
+    area = np.ptp(along, axis=0) * np.ptp(across, axis=0)
+    return dirs[int(np.argmin(area))]

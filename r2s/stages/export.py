@@ -18,6 +18,7 @@ import numpy as np
 from pydantic import Field
 
 from r2s.geometry.unsegmented import UNSEGMENTED_KEY
+from r2s.io.unmodelled import write_unmodelled
 from r2s.scene_model import corrected_input, corrected_state
 from r2s.errors import InputError, R2SError, StageError
 from r2s.io.declared_world import write_declared_world
@@ -217,6 +218,10 @@ def run(ctx: StageContext) -> dict:
                              ctx.progress, users=users, camera=camera)
     if view is not None and source != "gt" and view.corrected_from_declared is not None:
         write_declared_world(ctx.out_dir, view.corrected_from_declared, gravity)
+    if source != "gt" and (paths.stage_dir("init") / "state.json").is_file():
+        unmodelled = getattr(read_state(paths.stage_dir("init")), UNSEGMENTED_KEY, None)
+        if unmodelled:
+            write_unmodelled(ctx.out_dir, unmodelled)
     ctx.progress("done", 1.0)
     summary = {"source": source, "objects": len(bodies),
                "collision_pieces": int(sum(len(b.collision_pieces) for b in bodies))}

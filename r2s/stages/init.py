@@ -367,6 +367,8 @@ def _unsegmented(scene: InputScene, plane: PlaneFit, observed: dict, o: Options,
         records.append({"area_px": r.area_px, "box_px": list(r.box_px),
                         "height_m": round(r.height_m, 4),
                         "centre_world": [round(float(v), 5) for v in r.centre_world],
+                        "world_from_box": r.world_from_box.round(5).tolist(),
+                        "size_m": [round(float(v), 4) for v in r.size_m],
                         "touching_ids": list(r.touching_ids), "rests_on_it": carried})
         if k < 3:
             what = (f"; object{'s' if len(carried) > 1 else ''} "
