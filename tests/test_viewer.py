@@ -164,3 +164,26 @@ def test_player_plays_to_the_end_and_stops_without_loop(viewer_scene: Path) -> N
                                    atol=1e-6)
     finally:
         app.stop()
+
+
+def test_unmasked_things_are_boxes_in_their_own_layer(tmp_path: Path) -> None:
+    from r2s.io.unmodelled import write_unmodelled
+
+    scene_dir = write_viewer_scene(tmp_path / "scene")
+    assert load_viewer_scene(scene_dir).unmodelled == []
+    pose = np.eye(4)
+    pose[:3, 3] = [0.1, -0.05, 0.025]
+    write_unmodelled(scene_dir / "export", [{"world_from_box": pose.tolist(),
+                                             "size_m": [0.08, 0.06, 0.05], "height_m": 0.05}])
+    ((got_pose, got_size),) = load_viewer_scene(scene_dir).unmodelled
+    np.testing.assert_allclose(got_pose, pose)
+    np.testing.assert_allclose(got_size, [0.08, 0.06, 0.05])
+    app = start_viewer(scene_dir, host="127.0.0.1", port=_free_port())
+    try:
+        (box,) = app.controls.nodes["unmodelled"]
+        np.testing.assert_allclose(box.position, [0.1, -0.05, 0.025], atol=1e-6)
+        toggle = app.controls.layers["unmodelled"]
+        toggle.value = False
+        assert box.visible is False
+    finally:
+        app.stop()

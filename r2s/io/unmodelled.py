@@ -21,7 +21,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from r2s.io.atomic import atomic_write_json
+from r2s.io.input_scene import read_json_file
 
 UNMODELLED_FILE = "unmodelled.json"
 REGION_KEYS = ("world_from_box", "size_m", "height_m", "area_px", "box_px", "touching_ids",
@@ -35,3 +38,14 @@ def write_unmodelled(export_dir: Path, regions: list[dict]) -> None:
         "why": "unmasked things stand on the table (a segmenter's missed objects?); the "
                "twin leaves them out; each box holds what the camera saw of one",
         "regions": [{k: r[k] for k in REGION_KEYS if k in r} for r in regions]})
+
+
+def read_unmodelled_boxes(export_dir: Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(world_from_box (4, 4), size_m (3,))`` of each region in ``export_dir``'s file;
+    empty without the file."""
+    path = Path(export_dir) / UNMODELLED_FILE
+    if not path.is_file():
+        return []
+    return [(np.asarray(r["world_from_box"], dtype=np.float64),
+             np.asarray(r["size_m"], dtype=np.float64))
+            for r in (read_json_file(path) or {}).get("regions", [])]

@@ -23,6 +23,7 @@ from r2s.io.declared_world import camera_in_export_world
 from r2s.io.input_scene import Camera, load_camera, load_depth, load_rgb, read_json_file
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import ScenePaths
+from r2s.io.unmodelled import read_unmodelled_boxes
 from r2s.io.scene_json import ExportScene, read_export_scene
 
 SUPPORT_EDGE_RGB = (40, 170, 60)
@@ -90,6 +91,8 @@ class ViewerScene:
     rollout_duration_s: float = 3.0
     rollout_rate_hz: float = 240.0
     notes: list[str] = field(default_factory=list)  # what could not be shown, and why
+    # export/unmodelled.json: (world_from_box (4, 4), size_m (3,)) of each unmasked thing
+    unmodelled: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
 
     def centre_m(self) -> np.ndarray:
         """(3,) mean of the object centres (the origin when there is no object)."""
@@ -197,4 +200,5 @@ def load_viewer_scene(scene_dir: Path, max_points: int = MAX_POINTS) -> ViewerSc
     else:
         scene.notes.append("no contact graph (graph/contact_graph.json is missing)")
     scene.rollout_duration_s, scene.rollout_rate_hz = _rollout_settings(paths)
+    scene.unmodelled = read_unmodelled_boxes(paths.export)
     return scene

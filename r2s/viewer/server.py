@@ -37,6 +37,10 @@ MOVED_RGB = (230, 30, 30)
 """Colour of the shell drawn over objects that moved in the rollout."""
 
 
+UNMODELLED_RGB = (255, 0, 255)
+"""Magenta, as in init.png: things on the table that no mask covers."""
+
+
 def _rgb255(obj_id: int) -> tuple[int, int, int]:
     r, g, b, _ = colour_of(obj_id)
     return int(255 * r), int(255 * g), int(255 * b)
@@ -157,6 +161,16 @@ def _add_graph(server: viser.ViserServer, scene: ViewerScene, controls: ViewerCo
     controls.nodes["graph"] = nodes
 
 
+def _add_unmodelled(server: viser.ViserServer, scene: ViewerScene,
+                    controls: ViewerControls) -> None:
+    """The boxes of export/unmodelled.json: unmasked things the twin leaves out."""
+    controls.nodes["unmodelled"] = [
+        server.scene.add_box(f"/unmodelled/{k}", color=UNMODELLED_RGB,
+                             dimensions=tuple(float(v) for v in size), opacity=0.45,
+                             wxyz=_wxyz(pose[:3, :3]), position=pose[:3, 3])
+        for k, (pose, size) in enumerate(scene.unmodelled)]
+
+
 def _add_support(server: viser.ViserServer, scene: ViewerScene) -> None:
     n = np.asarray(scene.export.support.normal, dtype=np.float64)
     n /= np.linalg.norm(n)
@@ -220,6 +234,7 @@ def build_viewer(server: viser.ViserServer, scene: ViewerScene, playback: Playba
     _add_observed(server, scene, controls)
     _add_objects(server, scene, playback, controls)
     _add_graph(server, scene, controls)
+    _add_unmodelled(server, scene, controls)
     with server.gui.add_folder("Layers"):
         _add_layer_toggle(server, controls, "observed", "observed points", True)
         _add_layer_toggle(server, controls, "reconstruction", "reconstruction", True)
@@ -227,6 +242,9 @@ def build_viewer(server: viser.ViserServer, scene: ViewerScene, playback: Playba
         _add_layer_toggle(server, controls, "graph", "contact graph", True)
         _add_layer_toggle(server, controls, "moved", "highlight moved", True)
         _add_layer_toggle(server, controls, "labels", "labels", True)
+        if scene.unmodelled:
+            _add_layer_toggle(server, controls, "unmodelled", "unmasked things (left out)",
+                              True)
         server.gui.add_markdown(
             f"graph: <span style='color:rgb{SUPPORT_EDGE_RGB}'>support</span>, "
             f"<span style='color:rgb{PROXIMITY_EDGE_RGB}'>proximity</span>")
