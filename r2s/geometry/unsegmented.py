@@ -39,7 +39,8 @@ MIN_AREA_PX = 200
 """... and never fewer pixels than this."""
 UNSEGMENTED_KEY = "unsegmented"
 """Scene-level key of init's state: the regions found, as dicts (``area_px``, ``box_px``,
-``height_m``, ``centre_world``, ``touching_ids``, ``rests_on_it``)."""
+``height_m``, ``centre_world``, ``world_from_box``, ``size_m``, ``touching_ids``,
+``rests_on_it``)."""
 
 
 @dataclass(frozen=True)
@@ -132,9 +133,10 @@ def standing_box(points: np.ndarray, plane_point: np.ndarray, plane_normal: np.n
                  ) -> tuple[np.ndarray, np.ndarray]:
     """The box that stands on the plane and holds (N, 3) world ``points`` (1st to 99th
     percentile across, up to the 99th of the heights), turned about the normal as the
-    least-area rectangle around the points' footprint: ``world_from_box`` (4, 4), box frame at its centre with z along
-    the normal, and ``size_m`` (3,). Only what the camera saw: the side facing away from it
-    may reach farther."""
+    least-area rectangle around the points' footprint.
+
+    Returns ``world_from_box`` (4, 4), the box frame at its centre with z along the normal,
+    and ``size_m`` (3,). Only what the camera saw: the side facing away may reach farther."""
     n = np.asarray(plane_normal, dtype=np.float64)
     n = n / np.linalg.norm(n)
     u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])

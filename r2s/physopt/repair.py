@@ -149,6 +149,12 @@ def com_repair(world: World, oid: int, p: ObjectParams, max_step_m: float
     return p, moved
 
 
+def judge_orders(export_order: list[int]) -> list[list[int]]:
+    """The body-creation orders a check runs: the judge's (``export_order``) forwards and
+    backwards."""
+    return [export_order, export_order[::-1]] if len(export_order) > 1 else [export_order]
+
+
 def check(make_world: MakeWorld, params: Params, orders: list[list[int]],
           duration_s: float) -> Drift:
     """The judge's test, in fresh worlds: per object the worst (translation m, rotation
@@ -329,7 +335,7 @@ def verify_and_repair(make_world: MakeWorld, params: Params, order: list[int],
     when an object's drift is still at least ``fallback_severity`` of the judge's
     criterion.
     """
-    orders = [export_order, export_order[::-1]] if len(export_order) > 1 else [export_order]
+    orders = judge_orders(export_order)
     result = check(make_world, params, orders, settings.verify_duration_s)
     log["rounds"].append({"round": 0, "action": "check", "moving": settings.moving(result),
                           "drift": _drift_log(result)})

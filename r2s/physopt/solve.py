@@ -18,7 +18,8 @@ from r2s.physopt.contact_foot import with_foot
 from r2s.physopt.object_opt import optimise_objects
 from r2s.physopt.observation_bound import ObservationBound, displacement_flags
 from r2s.physopt.params import Drift, Params
-from r2s.physopt.repair import check, depenetrate_scene, verify_and_repair, world_factory
+from r2s.physopt.repair import (check, depenetrate_scene, judge_orders, verify_and_repair,
+                                world_factory)
 from r2s.physical.provenance import com_provenance, friction_provenance
 
 
@@ -63,7 +64,7 @@ def give_feet(make_world, pieces: dict, params: Params, export_order: list[int],
     """The objects that move in a first check get a flat foot under their lowest point
     (:mod:`r2s.physopt.contact_foot`), in ``pieces`` in place (the checks, and export, use
     them); ``log["feet"]``: id -> the foot's area, mm^2."""
-    orders = [export_order, export_order[::-1]] if len(export_order) > 1 else [export_order]
+    orders = judge_orders(export_order)
     movers = opt.moving(check(make_world, params, orders, opt.verify_duration_s))
     up = -np.asarray(state.gravity, dtype=float)
     feet = {}

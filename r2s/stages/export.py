@@ -25,7 +25,7 @@ from r2s.io.declared_world import write_declared_world
 from r2s.io.input_scene import InputScene, load_camera, load_input
 from r2s.io.mesh_io import load_mesh
 from r2s.io.paths import PHYSOPT_COLLISION_DIR, ScenePaths
-from r2s.io.state import read_state
+from r2s.io.state import SceneState, read_state
 from r2s.metrics.observation import instance_ids
 from r2s.metrics.observation_check import (SEEN_TOLERANCE_DEG, SEEN_TOLERANCE_M, FlagTolerances,
                                           check_observation)
@@ -157,27 +157,35 @@ def _corrected_view(paths: ScenePaths, model: dict, required: bool) -> Optional[
         return None
 
 
+def _init_state(paths: ScenePaths) -> Optional[SceneState]:
+    """init's state as written (None without it)."""
+    if not (paths.stage_dir("init") / "state.json").is_file():
+        return None
+    return read_state(paths.stage_dir("init"))
+
+
 def _observation(paths: ScenePaths, items: list[ObjectItem], opt: Options, model: dict,
-                 view: InputScene) -> tuple[dict[int, dict], list[str], dict]:
+                 view: InputScene, init: Optional[SceneState]
+                 ) -> tuple[dict[int, dict], list[str], dict]:
     """Per-object ``observation`` blocks, warning lines and a scene summary against the
     input as the scene's ``model`` corrects it (``view``). Takes the flags an earlier stage
-    left in ``item.extra`` (:data:`OBSERVATION_FLAG_KEY`) out of them."""
+    left in ``item.extra`` (:data:`OBSERVATION_FLAG_KEY`) out of them, and flags the objects
+    that may rest on one of the unmasked things ``init`` (its state) found."""
     for item in items:  # mask ids reconstructed as pieces of this object (extra key)
         pieces = sorted(f for f, p in view.merged_ids.items() if p == item.id)
         if pieces:
             item.extra["mask_ids"] = [item.id, *pieces]
     init_poses = None
-    if (paths.stage_dir("init") / "state.json").is_file():
-        init = corrected_state(read_state(paths.stage_dir("init")), model)
-        init_poses = {o.id: o.pose for o in init.objects}
+    if init is not None:
+        init_poses = {o.id: o.pose for o in corrected_state(init, model).objects}
     earlier = {item.id: str(item.extra[OBSERVATION_FLAG_KEY]) for item in items
                if item.extra.get(OBSERVATION_FLAG_KEY)}
-    if init_poses is not None:  # objects that may rest on something no mask covers
-        for region in getattr(init, UNSEGMENTED_KEY, None) or []:
-            why = (f"may rest on an unmasked thing {1000 * region['height_m']:.0f} mm tall "
-                   "that the twin leaves out")
-            for i in region.get("rests_on_it", []):
-                earlier[i] = f"{earlier[i]}; {why}" if i in earlier else why
+    # objects that may rest on something no mask covers
+    for region in getattr(init, UNSEGMENTED_KEY, None) or []:
+        why = (f"may rest on an unmasked thing {1000 * region['height_m']:.0f} mm tall "
+               "that the twin leaves out")
+        for i in region.get("rests_on_it", []):
+            earlier[i] = f"{earlier[i]}; {why}" if i in earlier else why
     for item in items:
         item.extra.pop(OBSERVATION_FLAG_KEY, None)
         seen = item.extra.pop(SEEN_POSE_KEY, None)  # physopt swapped in init's completion
@@ -205,10 +213,12 @@ def run(ctx: StageContext) -> dict:
     users = {} if source == "gt" else user_entries(paths.root)
     warnings: list[str] = []
     observed: dict = {}
+    init = _init_state(paths)
     view = _corrected_view(paths, ctx.manifest.model, required=opt.observation)
     if opt.observation and view is not None:
         ctx.progress("observation check", 0.0)
-        blocks, warnings, observed = _observation(paths, items, opt, ctx.manifest.model, view)
+        blocks, warnings, observed = _observation(paths, items, opt, ctx.manifest.model, view,
+                                                  init)
         for item in items:
             if item.id in blocks:
                 item.extra["observation"] = blocks[item.id]
@@ -218,10 +228,9 @@ def run(ctx: StageContext) -> dict:
                              ctx.progress, users=users, camera=camera)
     if view is not None and source != "gt" and view.corrected_from_declared is not None:
         write_declared_world(ctx.out_dir, view.corrected_from_declared, gravity)
-    if source != "gt" and (paths.stage_dir("init") / "state.json").is_file():
-        unmodelled = getattr(read_state(paths.stage_dir("init")), UNSEGMENTED_KEY, None)
-        if unmodelled:
-            write_unmodelled(ctx.out_dir, unmodelled)
+    unsegmented = getattr(init, UNSEGMENTED_KEY, None)
+    if source != "gt" and unsegmented:
+        write_unmodelled(ctx.out_dir, unsegmented)
     ctx.progress("done", 1.0)
     summary = {"source": source, "objects": len(bodies),
                "collision_pieces": int(sum(len(b.collision_pieces) for b in bodies))}

@@ -28,6 +28,7 @@ import trimesh
 import viser
 import viser.transforms as vtf
 
+from r2s.geometry.overlay import UNMASKED_COLOR
 from r2s.sim.render import colour_of
 from r2s.viewer.playback import PLAYBACK_HZ, Playback, simulate_playback
 from r2s.viewer.scene_data import (PROXIMITY_EDGE_RGB, SUPPORT_EDGE_RGB, ViewerScene,
@@ -35,10 +36,6 @@ from r2s.viewer.scene_data import (PROXIMITY_EDGE_RGB, SUPPORT_EDGE_RGB, ViewerS
 
 MOVED_RGB = (230, 30, 30)
 """Colour of the shell drawn over objects that moved in the rollout."""
-
-
-UNMODELLED_RGB = (255, 0, 255)
-"""Magenta, as in init.png: things on the table that no mask covers."""
 
 
 def _rgb255(obj_id: int) -> tuple[int, int, int]:
@@ -165,7 +162,7 @@ def _add_unmodelled(server: viser.ViserServer, scene: ViewerScene,
                     controls: ViewerControls) -> None:
     """The boxes of export/unmodelled.json: unmasked things the twin leaves out."""
     controls.nodes["unmodelled"] = [
-        server.scene.add_box(f"/unmodelled/{k}", color=UNMODELLED_RGB,
+        server.scene.add_box(f"/unmodelled/{k}", color=tuple(int(v) for v in UNMASKED_COLOR),
                              dimensions=tuple(float(v) for v in size), opacity=0.45,
                              wxyz=_wxyz(pose[:3, :3]), position=pose[:3, 3])
         for k, (pose, size) in enumerate(scene.unmodelled)]
