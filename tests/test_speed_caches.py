@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from r2s.forked_map import THREADS_VARIABLE
 from r2s.io.mesh_io import same_triangles, save_mesh, welded
 from r2s.io.state import SceneState, SupportPlane
 from r2s.physopt import pybullet_world
@@ -117,7 +118,8 @@ def bar_scene():
     return {1: bar, 2: bar}, state, params
 
 
-def test_check_memo_returns_the_fresh_worlds_result(bar_scene):
+def test_check_memo_returns_the_fresh_worlds_result(bar_scene, monkeypatch):
+    monkeypatch.setenv(THREADS_VARIABLE, "1")  # every world built in this process, counted
     pieces, state, params = bar_scene
     settings, order = RepairSettings(), [1, 2]
     orders = [order, order[::-1]]

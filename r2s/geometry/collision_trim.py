@@ -25,6 +25,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import ConvexHull, QhullError
 
+from r2s.forked_map import forked_map
 from r2s.geometry.camera import transform_points
 from r2s.geometry.sdf import occupancy, raycasting_scene
 
@@ -259,11 +260,20 @@ def trim_scene_pieces(pieces: dict[int, list[trimesh.Trimesh]],
     world_samples = {i: transform_points(poses[i], surface_points(m, NEIGHBOUR_SAMPLES, seed=2))
                      for i, m in meshes.items()}
     out, reports = {}, {}
+    todo = []
     for i in sorted(pieces):
         others = [world_samples[j] for j in sorted(meshes) if j != i]
         if not others or (only is not None and i not in only):
             out[i] = list(pieces[i])
-            continue
-        local = transform_points(np.linalg.inv(np.asarray(poses[i])), np.vstack(others))
-        out[i], reports[i] = trim_pieces(pieces[i], meshes[i], local, tol_m, max_split_depth)
-    return out, reports
+        else:
+            todo.append((i, np.vstack(others)))
+
+    def trim_one(item: tuple[int, np.ndarray]) -> tuple[list[trimesh.Trimesh], TrimReport]:
+        i, others_world = item
+        local = transform_points(np.linalg.inv(np.asarray(poses[i])), others_world)
+        return trim_pieces(pieces[i], meshes[i], local, tol_m, max_split_depth)
+
+    # each object against the others' visual meshes, independent: side by side on the cores
+    for (i, _), (trimmed, report) in zip(todo, forked_map(trim_one, todo)):
+        out[i], reports[i] = trimmed, report
+    return {i: out[i] for i in sorted(out)}, reports

@@ -34,6 +34,7 @@ import pybullet as pb
 from PIL import Image
 from pydantic import Field
 
+from r2s.forked_map import forked_map
 from r2s.console import ProgressFn
 from r2s.scene_model import corrected_camera, corrected_input
 from r2s.errors import R2SError, StageError
@@ -209,6 +210,15 @@ def _geometry_of(paths: ScenePaths, obj: ExportObject, gt: GtScene, options: Opt
     }
 
 
+def _geometry_per_object(paths: ScenePaths, objects: list[ExportObject],
+                         gt: Optional[GtScene], options: Options) -> list[dict]:
+    """:func:`_geometry_of` for each object (all None without gt/); the objects' metrics
+    are independent (seeded samples), so they are computed side by side on the cores."""
+    if gt is None:
+        return [{key: None for key in GEOMETRY_KEYS} for _ in objects]
+    return forked_map(lambda obj: _geometry_of(paths, obj, gt, options), objects)
+
+
 def _camera(paths: ScenePaths, loaded: LoadedScene, model: dict
             ) -> tuple[np.ndarray, np.ndarray, int, int]:
     """(K, world_from_camera, width, height): the input camera, else a view of the objects."""
@@ -312,15 +322,16 @@ def run(ctx: StageContext) -> dict:
     per_stab = object_stability(sim.traj, options.stable_translation_m, options.stable_rotation_deg)
     gt = read_gt_scene(paths.gt_scene)
 
+    if gt is not None:
+        progress("geometry against gt/", 0.4)
+    geometry = _geometry_per_object(paths, export_objects, gt, options)
     objects: list[dict] = []
     for k, (obj, stab) in enumerate(zip(export_objects, per_stab)):
-        progress(f"geometry of object {obj.id}", 0.4 + 0.55 * k / len(export_objects))
         entry: dict[str, Any] = {"id": obj.id, "label": obj.label, "source": _source(obj)}
         entry.update(stab.as_dict())
         entry.update(penetration_mm=float(pen.per_object_penetration_mm[k]),
                      gap_mm=float(pen.per_object_gap_mm[k]), floating=bool(pen.floating[k]))
-        entry.update(_geometry_of(paths, obj, gt, options) if gt is not None
-                     else {key: None for key in GEOMETRY_KEYS})
+        entry.update(geometry[k])
         objects.append(entry)
 
     scene: dict[str, Any] = dict(scene_stability(per_stab))

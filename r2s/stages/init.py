@@ -54,6 +54,7 @@ from pydantic import Field
 from scipy import ndimage
 
 from r2s.errors import InputError, StageError
+from r2s.forked_map import forked_map
 from r2s.geometry import sanity
 from r2s.geometry.camera import backproject, instance_points, transform_points
 from r2s.geometry.carving import carve_view
@@ -513,37 +514,48 @@ def _choose_prior_or_completion(scene: InputScene, observed: dict, shapes: dict[
     margins = ChoiceMargins(iou_gain=o.prior_choice_iou_gain,
                             ucd_gain_mm=o.prior_choice_ucd_gain_mm,
                             free_space_slack=o.prior_choice_free_space_slack)
-    records: dict[int, dict] = {}
-    completions: dict[int, tuple] = {}
-    for i in sorted(i for i, shape in shapes.items() if shape[2] is not None):
+    def judge(i: int) -> tuple[Optional[tuple], dict, Optional[str]]:
+        """(the completion or None, the record, a flag line or None) of prior ``i``."""
         others = [(j, m) for j, m in posed.items() if j != i]
         try:
-            completions[i] = _complete(scene, specs[i], observed, plane, o)
+            completion = _complete(scene, specs[i], observed, plane, o)
         except StageError:  # too few or collinear points: nothing to compare, keep the prior
-            records[i] = {"chosen": "prior", "prior": None, "completion": None}
-            continue
+            return None, {"chosen": "prior", "prior": None, "completion": None}, None
         scores = [score_in_view(candidate, i, others, observed[i][0], cam.K,
                                 cam.world_from_camera, scene.depth_m, scene.masks)
-                  for candidate in (posed[i], _posed(*completions[i]))]
+                  for candidate in (posed[i], _posed(*completion))]
         rest = None
         if o.prior_choice_rest and stands_alone_on_table(
                 posed[i], [m for _, m in others], plane.point, plane.normal):
             try:
                 rest = tuple(_rest_alone(mesh, pose, plane)
-                             for mesh, pose in (shapes[i][:2], completions[i]))
+                             for mesh, pose in (shapes[i][:2], completion))
             except ValueError:  # a flat or degenerate candidate: the view decides alone
                 rest = None
         chosen, numbers = choose(scores[0], scores[1], margins, rest)
         if o.prior_choice != "auto":
             chosen = o.prior_choice
-        records[i] = {"chosen": chosen, "prior": scores[0].as_dict(),
-                      "completion": scores[1].as_dict()}
+        record = {"chosen": chosen, "prior": scores[0].as_dict(),
+                  "completion": scores[1].as_dict()}
         if rest is not None:
-            records[i]["rest_alone"] = {name: r.as_dict()
-                                        for name, r in zip(("prior", "completion"), rest)}
+            record["rest_alone"] = {name: r.as_dict()
+                                    for name, r in zip(("prior", "completion"), rest)}
+        flag = None
         if chosen == "completion":
-            flags.append(f"object {i}: its prior was replaced by the completion from the "
-                         f"observation ({numbers})")
+            flag = (f"object {i}: its prior was replaced by the completion from the "
+                    f"observation ({numbers})")
+        return completion, record, flag
+
+    # each prior against the others as they stand, independent: side by side on the cores
+    ids = sorted(i for i, shape in shapes.items() if shape[2] is not None)
+    records: dict[int, dict] = {}
+    completions: dict[int, tuple] = {}
+    for i, (completion, record, flag) in zip(ids, forked_map(judge, ids)):
+        records[i] = record
+        if completion is not None:
+            completions[i] = completion
+        if flag:
+            flags.append(flag)
     for i, record in records.items():
         if record["chosen"] == "completion":
             shapes[i] = (*completions[i], None)
@@ -820,13 +832,25 @@ def _register_or_complete(scene: InputScene, observed: dict, plane: PlaneFit, o:
     n = len(scene.objects)
     priors: dict[int, tuple[trimesh.Trimesh, RefinedPose]] = {}
     shapes: dict[int, tuple] = {}
+    with_prior = [spec for spec in scene.objects if spec.prior_mesh is not None]
+    if with_prior:
+        progress(f"registering {len(with_prior)} priors", 0.0)
+
+    def register_one(spec: ObjectSpec) -> tuple[tuple, list[str]]:
+        notes: list[str] = []
+        return _register(scene, spec, observed[spec.id][0], plane, o, notes), notes
+
+    # independent fits, each seeding its own sampling: side by side on the cores there are
+    registered = dict(zip([spec.id for spec in with_prior],
+                          forked_map(register_one, with_prior)))
     for k, spec in enumerate(scene.objects):
-        progress(f"object {spec.id}", 0.8 * k / max(n, 1))
         if spec.prior_mesh is not None:
-            prior, pose, reg = _register(scene, spec, observed[spec.id][0], plane, o, flags)
+            (prior, pose, reg), notes = registered[spec.id]
+            flags.extend(notes)
             priors[spec.id] = (prior, pose)
             shapes[spec.id] = (None, None, reg)
         else:
+            progress(f"object {spec.id}", 0.4 + 0.4 * k / max(n, 1))
             mesh, world_from_object = _complete(scene, spec, observed, plane, o)
             shapes[spec.id] = (mesh, world_from_object, None)
     return priors, shapes
