@@ -55,6 +55,11 @@ HOLE_FILL_PX = 2
 TABLE_TOLERANCE_M = 0.003
 TABLE_MARGIN_M = 0.002
 MASK_CLOSE_PX = 2
+OTHER_MARGIN_M = 0.0
+"""In front of a reading deep inside another instance's mask, the margin: the mask says
+the camera saw that object there, so no part of this one lies in front of it (its
+reading's noise only decides how much of this object's hidden material next to that
+surface is kept)."""
 
 
 @dataclass(frozen=True)
@@ -66,7 +71,9 @@ class CarveView:
     rim, where nothing is carved; own : (H, W) bool, the kept pixels (what hides a point
     from the camera there is the object itself); margin_m, margin_quadratic_m : see the
     module docstring; background : (H, W) bool or None, pixels the masks call background,
-    outside the rim (the silhouette test of the module docstring).
+    outside the rim (the silhouette test of the module docstring); others_inner : (H, W)
+    bool or None, pixels at least ``other_inner_px`` inside another instance's mask
+    (:func:`seen_as_other`).
     """
 
     K: np.ndarray
@@ -79,6 +86,8 @@ class CarveView:
     table_depth_m: Optional[np.ndarray] = None
     table_margin_m: float = TABLE_MARGIN_M
     background: Optional[np.ndarray] = None
+    others_inner: Optional[np.ndarray] = None
+    other_margin_m: float = OTHER_MARGIN_M
 
 
 def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray,
@@ -89,13 +98,14 @@ def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray
                table_tolerance_m: float = TABLE_TOLERANCE_M,
                table_margin_m: float = TABLE_MARGIN_M,
                masks: Optional[np.ndarray] = None,
-               close_px: int = MASK_CLOSE_PX) -> CarveView:
+               close_px: int = MASK_CLOSE_PX, other_inner_px: int = 0) -> CarveView:
     """A :class:`CarveView` for an object whose kept observations are ``own_pixels``
     ((N, 2) int (row, col)): its rim (``band_px`` outside them, ``rim_px`` inside) is
     exempt from carving; holes are filled as the module docstring says. ``plane``
     (point (3,), unit normal (3,), world frame) enables the table test and ``masks``
     ((H, W) int instance ids, 0 = background) the silhouette test of the module
-    docstring."""
+    docstring; with ``masks``, ``other_inner_px`` > 0 marks the pixels deep inside
+    another instance's mask for :func:`seen_as_other`."""
     depth = fill_edge_holes(np.asarray(depth_m, dtype=np.float64), hole_fill_px)
     own = np.zeros(depth.shape, dtype=bool)
     pix = np.asarray(own_pixels, dtype=np.int64).reshape(-1, 2)
@@ -111,11 +121,30 @@ def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray
             sees_table = np.abs(raw - plane_z) < tol
         table = np.where(sees_table & ~grown, plane_z, np.nan)
     background = None if masks is None else ~_covered_once(masks, close_px) & ~grown
+    others_inner = None
+    if masks is not None and other_inner_px > 0:
+        others_inner = _inside_other_instances(np.asarray(masks), pix, other_inner_px) & ~grown
     return CarveView(K=np.asarray(K, dtype=np.float64),
                      world_from_camera=np.asarray(world_from_camera, dtype=np.float64),
                      depth_m=depth, exempt=grown & ~inner, own=own, margin_m=float(margin_m),
                      margin_quadratic_m=float(margin_quadratic_m), table_depth_m=table,
-                     table_margin_m=float(table_margin_m), background=background)
+                     table_margin_m=float(table_margin_m), background=background,
+                     others_inner=others_inner)
+
+
+def _inside_other_instances(masks: np.ndarray, own_pixels: np.ndarray, inner_px: int
+                            ) -> np.ndarray:
+    """(H, W) bool: pixels of an instance other than the one most of ``own_pixels`` ((N, 2)
+    row, col) lie in, with every pixel within ``inner_px`` (square window) of the same
+    instance: away from its outline, where a neighbour's bleed or an edge's mixed reading
+    could be this object's surface."""
+    labels = np.asarray(masks)
+    own_ids = labels[own_pixels[:, 0], own_pixels[:, 1]] if len(own_pixels) else labels[:0, 0]
+    own_ids = own_ids[own_ids > 0]
+    own_id = np.bincount(own_ids).argmax() if len(own_ids) else 0
+    size = 2 * int(inner_px) + 1
+    uniform = ndimage.minimum_filter(labels, size=size) == ndimage.maximum_filter(labels, size=size)
+    return uniform & (labels > 0) & (labels != own_id)
 
 
 def covered_by_masks(masks: np.ndarray, close_px: int = MASK_CLOSE_PX) -> np.ndarray:
@@ -194,6 +223,21 @@ def _lookup(view: CarveView, points_world: np.ndarray
     return ok, row, col, z, view.depth_m[row, col]
 
 
+def seen_as_other(view: CarveView, points_world: np.ndarray) -> np.ndarray:
+    """(N,) bool: world points (N, 3) where the camera saw another object's surface at
+    about their depth: at a pixel deep inside another instance's mask
+    (``view.others_inner``), a valid reading no nearer than the point by more than the
+    margin (so nothing hides the point there). Such a point, had it been this object's,
+    would have been seen as this object. All False without ``others_inner``."""
+    ok, row, col, z, d = _lookup(view, points_world)
+    if view.others_inner is None:
+        return np.zeros(len(z), dtype=bool)
+    read = ok & np.isfinite(d) & (d > 0) & view.others_inner[row, col]
+    margin = view.margin_m + view.margin_quadratic_m * np.square(np.where(read, d, 0.0))
+    with np.errstate(invalid="ignore"):
+        return read & (d >= z - margin)
+
+
 def hidden_by_other(view: CarveView, points_world: np.ndarray) -> np.ndarray:
     """(N,) bool: world points (N, 3) in the image that the camera could not see because
     something other than the object is in front of them (a valid reading nearer by more
@@ -217,4 +261,6 @@ def seen_free(view: CarveView, points_world: np.ndarray) -> np.ndarray:
             free |= ok & np.isfinite(table) & (z < table - view.table_margin_m)
         if view.background is not None:
             free |= ok & view.background[row, col] & ~(read & (d < z - margin))
+        if view.others_inner is not None:
+            free |= read & view.others_inner[row, col] & (z < d - view.other_margin_m)
     return free

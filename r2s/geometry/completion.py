@@ -44,7 +44,7 @@ from scipy.spatial import ConvexHull, QhullError, cKDTree
 from skimage.measure import marching_cubes
 
 from r2s.geometry.camera import transform_points
-from r2s.geometry.carving import CarveView, hidden_by_other, seen_free
+from r2s.geometry.carving import CarveView, hidden_by_other, seen_as_other, seen_free
 from r2s.geometry.plane import world_from_plane
 from r2s.geometry.sdf import raycasting_scene
 
@@ -475,6 +475,7 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
     if view is not None:
         field, carved_fraction = _carve(field, lambda p: seen_free(view, p), world_from_pl,
                                         xs, ys, zs, cell)
+        field = _drop_columns_seen_as_other(field, view, world_from_pl, xs, ys, zs, cell)
     if exclude is not None:
         field, _ = _carve(field, exclude, world_from_pl, xs, ys, zs, cell)
     mesh, centre = mesh_field(field, np.array([x0, y0, z0]), cell)
@@ -562,11 +563,44 @@ def _carve(field: np.ndarray, is_free: Callable[[np.ndarray], np.ndarray],
     out = field.copy()
     gone = inside[free]
     out[gone[:, 0], gone[:, 1], gone[:, 2]] = -cell
-    labels, count = ndimage.label(out > 0)
-    if count == 0:
+    if not _drop_small_pieces(out, cell):
         return field, 1.0
+    return out, 1.0 - float(np.count_nonzero(out > 0)) / len(inside)
+
+
+def _drop_small_pieces(field: np.ndarray, cell: float) -> bool:
+    """Set outside, in place, the pieces of ``field`` (positive inside) with less than
+    ``MIN_PIECE_FRACTION`` of the largest one's nodes; False when nothing is inside."""
+    labels, count = ndimage.label(field > 0)
+    if count == 0:
+        return False
     sizes = np.bincount(labels.ravel())[1:]
     small = np.flatnonzero(sizes < MIN_PIECE_FRACTION * sizes.max()) + 1
     if len(small):
-        out[np.isin(labels, small)] = -cell
-    return out, 1.0 - float(np.count_nonzero(out > 0)) / len(inside)
+        field[np.isin(labels, small)] = -cell
+    return True
+
+
+def _drop_columns_seen_as_other(field: np.ndarray, view: CarveView,
+                                world_from_pl: np.ndarray, xs: np.ndarray, ys: np.ndarray,
+                                zs: np.ndarray, cell: float) -> np.ndarray:
+    """``field`` (nx, ny, nz; plane frame, z up) without the columns whose highest node
+    the camera saw as another object's surface (:func:`r2s.geometry.carving.seen_as_other`):
+    nothing hides that node, so the column's top would have been seen as this object. What
+    carving leaves of such a column is a layer within the sensor margin of the other
+    object's surface (the convex footprint of a curved object, a banana, spans the plate
+    it lies on, and is carved down to the plate's surface but not through it) and, below
+    it, space inside the other object. Unchanged when every column would go."""
+    inside = field > 0
+    filled = inside.any(axis=2)
+    if view.others_inner is None or not filled.any():
+        return field
+    top = inside.shape[2] - 1 - np.argmax(inside[:, :, ::-1], axis=2)
+    ii, jj = np.nonzero(filled)
+    nodes = np.c_[xs[ii], ys[jj], zs[top[ii, jj]]]
+    seen = seen_as_other(view, transform_points(world_from_pl, nodes))
+    if not seen.any() or seen.all():
+        return field
+    out = field.copy()
+    out[ii[seen], jj[seen], :] = -cell
+    return out if _drop_small_pieces(out, cell) else field

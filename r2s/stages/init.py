@@ -233,10 +233,16 @@ class Options(StageOptions):
         True, description="Carve a completed object against the depth image: no material "
                           "where the camera saw past it (see geometry/carving.py).")
     completion_carve_band_px: int = Field(
-        2, ge=0, description="Carving spares the mask's uncertain rim: this many pixels "
+        1, ge=0, description="Carving spares the mask's uncertain rim: this many pixels "
                              "outside the object's kept pixels, where mixed readings and "
                              "mask bleed put the reading on the wrong surface (see "
                              "geometry/carving.py).")
+    completion_other_inner_px: int = Field(
+        3, ge=0, description="A completed object loses every column whose top the camera "
+                             "saw as another object's surface (a pixel at least this many "
+                             "pixels inside another instance's mask, its reading at about "
+                             "the top's depth: nothing hid that top); 0 = off (see "
+                             "geometry/completion.py).")
     completion_carve_silhouette: bool = Field(
         True, description="Carve a completed object where the sensor read no depth but no "
                           "instance mask covers the pixel (the camera saw background there: "
@@ -627,7 +633,8 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
     table = (plane.point, plane.normal) if o.completion_carve_table else None
     view = (carve_view(cam.K, cam.world_from_camera, scene.depth_m, pix, plane=table,
                        band_px=o.completion_carve_band_px,
-                       masks=scene.masks if o.completion_carve_silhouette else None)
+                       masks=scene.masks if o.completion_carve_silhouette else None,
+                       other_inner_px=o.completion_other_inner_px)
             if o.completion_carve else None)
     cap, cap_src = np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
     if o.completion_border_extent_m > 0:
