@@ -223,17 +223,23 @@ def _lookup(view: CarveView, points_world: np.ndarray
     return ok, row, col, z, view.depth_m[row, col]
 
 
+def _sensor_margin_m(view: CarveView, d: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(N,) the sensor margin at readings ``d`` (N,) (module docstring), 0 m of depth where
+    not ``valid``."""
+    return view.margin_m + view.margin_quadratic_m * np.square(np.where(valid, d, 0.0))
+
+
 def seen_as_other(view: CarveView, points_world: np.ndarray) -> np.ndarray:
     """(N,) bool: world points (N, 3) where the camera saw another object's surface at
     about their depth: at a pixel deep inside another instance's mask
     (``view.others_inner``), a valid reading no nearer than the point by more than the
     margin (so nothing hides the point there). Such a point, had it been this object's,
     would have been seen as this object. All False without ``others_inner``."""
-    ok, row, col, z, d = _lookup(view, points_world)
     if view.others_inner is None:
-        return np.zeros(len(z), dtype=bool)
+        return np.zeros(len(np.asarray(points_world).reshape(-1, 3)), dtype=bool)
+    ok, row, col, z, d = _lookup(view, points_world)
     read = ok & np.isfinite(d) & (d > 0) & view.others_inner[row, col]
-    margin = view.margin_m + view.margin_quadratic_m * np.square(np.where(read, d, 0.0))
+    margin = _sensor_margin_m(view, d, read)
     with np.errstate(invalid="ignore"):
         return read & (d >= z - margin)
 
@@ -244,7 +250,7 @@ def hidden_by_other(view: CarveView, points_world: np.ndarray) -> np.ndarray:
     than the margin at a pixel that is not one of the object's kept pixels)."""
     ok, row, col, z, d = _lookup(view, points_world)
     valid = ok & np.isfinite(d) & (d > 0) & ~view.own[row, col]
-    margin = view.margin_m + view.margin_quadratic_m * np.square(np.where(valid, d, 0.0))
+    margin = _sensor_margin_m(view, d, valid)
     with np.errstate(invalid="ignore"):
         return valid & (d < z - margin)
 
@@ -253,7 +259,7 @@ def seen_free(view: CarveView, points_world: np.ndarray) -> np.ndarray:
     """(N,) bool: which world points (N, 3) the camera saw past (free space)."""
     ok, row, col, z, d = _lookup(view, points_world)
     read = ok & np.isfinite(d) & (d > 0)
-    margin = view.margin_m + view.margin_quadratic_m * np.square(np.where(read, d, 0.0))
+    margin = _sensor_margin_m(view, d, read)
     with np.errstate(invalid="ignore"):
         free = read & ~view.exempt[row, col] & (z < d - margin)
         if view.table_depth_m is not None:

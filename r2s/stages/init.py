@@ -238,10 +238,11 @@ class Options(StageOptions):
                              "mask bleed put the reading on the wrong surface (see "
                              "geometry/carving.py).")
     completion_other_inner_px: int = Field(
-        3, ge=0, description="A completed object loses every column whose top the camera "
-                             "saw as another object's surface (a pixel at least this many "
-                             "pixels inside another instance's mask, its reading at about "
-                             "the top's depth: nothing hid that top); 0 = off (see "
+        3, ge=0, description="Pixels at least this many pixels inside another instance's "
+                             "mask show that object: a completed object keeps nothing in "
+                             "front of their readings (no sensor margin), and loses every "
+                             "column whose top the camera saw there at about its depth "
+                             "(nothing hid that top); 0 = off (see geometry/carving.py, "
                              "geometry/completion.py).")
     completion_carve_silhouette: bool = Field(
         True, description="Carve a completed object where the sensor read no depth but no "
