@@ -194,8 +194,10 @@ class Options(StageOptions):
                                     "completion that rests and is at most 0.02 worse in "
                                     "silhouette IoU, 0.5 mm in UCD and 0.02 in free space "
                                     "(geometry/prior_choice.py RestRule).")
-    completion_cell_m: float = Field(0.003, gt=0, description="Grid cell of the height-field "
-                                     "completion of objects without a prior.")
+    completion_cell_m: float = Field(0.002, gt=0, description="Grid cell of the height-field "
+                                     "completion of objects without a prior, m (0.003 "
+                                     "before 2026-11-27: its walls stood up to a pixel "
+                                     "outside the silhouette; docs/completion.md).")
     completion_hull_margin_px: float = Field(0.25, ge=0, description="Grow a completed "
                                              "object's footprint by this many pixels' "
                                              "footprint on the surface.")
