@@ -57,8 +57,9 @@ class RestOnPlane:
 
 def _closed_hull(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """``mesh``'s convex hull as a closed mesh. trimesh's hull of a fine marching-cubes
-    mesh (many points on each flat face) can come back with holes where it dropped
-    slivers; then the hull is rebuilt from qhull's triangles as they are."""
+    mesh (many points on each flat face) can come back not watertight (seen on a 2 mm
+    completion of a long box); then the hull is rebuilt from qhull's triangles as they
+    are, which close."""
     hull = mesh.convex_hull
     if hull.is_volume:
         return hull
