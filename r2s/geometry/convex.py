@@ -16,9 +16,25 @@ from typing import Literal
 
 import numpy as np
 import trimesh
+from scipy.spatial import ConvexHull
 
 CONVEX_VOLUME_RATIO = 0.9
 """A closed mesh whose volume is at least this fraction of its hull's is treated as convex."""
+
+
+def closed_convex_hull(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """``mesh``'s convex hull as a closed mesh (same frame and units). trimesh's hull of a
+    fine marching-cubes mesh (many points on each flat face) can come back not watertight
+    (seen on a 2 mm completion of a long box); then the hull is rebuilt from qhull's
+    triangles as they are, which close. ``QhullError`` for flat or degenerate vertices."""
+    hull = mesh.convex_hull
+    if hull.is_volume:
+        return hull
+    qhull = ConvexHull(np.asarray(mesh.vertices, dtype=float))
+    rebuilt = trimesh.Trimesh(qhull.points, qhull.simplices)
+    rebuilt.remove_unreferenced_vertices()
+    rebuilt.fix_normals()
+    return rebuilt
 
 
 def _clean(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
@@ -112,7 +128,7 @@ def convex_decomposition(mesh: trimesh.Trimesh, threshold: float = 0.05, max_pie
     list of convex, watertight ``trimesh.Trimesh``.
     """
     mesh = _clean(mesh)
-    hull = mesh.convex_hull
+    hull = closed_convex_hull(mesh)
     if mesh.is_watertight and abs(mesh.volume) >= CONVEX_VOLUME_RATIO * hull.volume:
         return [hull]
     try:

@@ -12,6 +12,8 @@ from typing import Sequence
 import numpy as np
 import trimesh
 
+from r2s.geometry.convex import closed_convex_hull
+
 
 @dataclass(frozen=True)
 class MassProperties:
@@ -34,7 +36,7 @@ def _solid_parts(mesh: trimesh.Trimesh, pieces: Sequence[trimesh.Trimesh]) -> li
         fixed.invert()
         return [fixed]
     parts = [p for p in pieces if p.volume > 0]
-    return parts or [mesh.convex_hull]
+    return parts or [closed_convex_hull(mesh)]
 
 
 def mass_properties(mesh: trimesh.Trimesh, pieces: Sequence[trimesh.Trimesh] = (),

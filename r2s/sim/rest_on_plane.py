@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 import pybullet as pb
 import trimesh
-from scipy.spatial import ConvexHull
 
+from r2s.geometry.convex import closed_convex_hull
 from r2s.geometry.mass_properties import mass_properties
 from r2s.sim.pybullet_bodies import (TIME_STEP_S, add_rigid_body, add_support_plane,
                                      body_world_from_object, connect_direct)
@@ -55,21 +55,6 @@ class RestOnPlane:
     lift_m: float
 
 
-def _closed_hull(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
-    """``mesh``'s convex hull as a closed mesh. trimesh's hull of a fine marching-cubes
-    mesh (many points on each flat face) can come back not watertight (seen on a 2 mm
-    completion of a long box); then the hull is rebuilt from qhull's triangles as they
-    are, which close."""
-    hull = mesh.convex_hull
-    if hull.is_volume:
-        return hull
-    qhull = ConvexHull(np.asarray(mesh.vertices, dtype=float))
-    rebuilt = trimesh.Trimesh(qhull.points, qhull.simplices)
-    rebuilt.remove_unreferenced_vertices()
-    rebuilt.fix_normals()
-    return rebuilt
-
-
 def rest_on_plane(mesh: trimesh.Trimesh, world_from_object: np.ndarray,
                   plane_point: np.ndarray, plane_normal: np.ndarray,
                   friction: float = 0.8, duration_s: float = 1.0) -> RestOnPlane:
@@ -82,7 +67,7 @@ def rest_on_plane(mesh: trimesh.Trimesh, world_from_object: np.ndarray,
     normal = normal / np.linalg.norm(normal)
     with np.errstate(invalid="ignore", divide="ignore"):  # a flat hull's centre of mass
         try:
-            hull = _closed_hull(mesh)
+            hull = closed_convex_hull(mesh)
         except Exception as exc:  # qhull on flat or degenerate vertices
             raise ValueError(f"no convex hull ({str(exc)[:60]})") from None
         enclosed = hull.is_volume and hull.volume >= MIN_HULL_VOLUME_M3
