@@ -30,6 +30,7 @@ sys.path.insert(0, str(REPO))
 
 from r2s.diagnose.effects import get_effect  # noqa: E402
 from r2s.diagnose.measure.scene_dir import MeasureSettings, measure_scene  # noqa: E402
+from r2s.diagnose.stats.table_offset import offset_evidence  # noqa: E402
 from r2s.io.paths import ScenePaths  # noqa: E402
 
 
@@ -84,7 +85,7 @@ def scene_rows(scene: Path, settings: MeasureSettings, true_mesh: bool = False) 
                      "fit_error_log": float(np.log(x.scale / expected)),
                      "true_mesh_scale": true.get(x.id),
                      "used": x.id in used})
-    ev = res.table_shape.offset_evidence() if res.table_shape is not None else None
+    ev = offset_evidence(res.table_shape)
     fits = {}
     for name in ("depth_scale", "depth_offset"):
         eff = get_effect(name)

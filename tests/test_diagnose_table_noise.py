@@ -12,8 +12,8 @@ from r2s.diagnose.effects import all_effects, get_effect
 from r2s.diagnose.measure.observe import FitQuality, registration_residual
 from r2s.diagnose.stats.ranking import NoiseBar, fit_effect, rank, supported
 from r2s.diagnose.stats.table_offset import (NOISE_PRIOR_TILES, PLANE_AND_OFFSET_PARAMS,
-                                             table_noise_level, table_offset_evidence,
-                                             with_measured_noise)
+                                             offset_evidence, table_noise_level,
+                                             table_offset_evidence, with_measured_noise)
 from r2s.diagnose.stats.table_shape import GRID
 from r2s.stages.diagnose import Options as DiagnoseOptions
 from tests.test_diagnose_table_offset import H, K, W, shape, table_points
@@ -74,7 +74,7 @@ def test_measured_noise_sharpens_the_offset_of_a_flat_table_and_widens_a_rough_o
     flat = shape(table_points(offset_m=0.01, noise_m=0.0003))
     at_config = table_offset_evidence(flat)
     measured = with_measured_noise(flat)
-    at_measured = measured.offset_evidence()
+    at_measured = offset_evidence(measured)
     assert measured.sigma_m < 0.7 * SIGMA0_M
     assert at_measured.offset_m == pytest.approx(at_config.offset_m, abs=0.001)
     assert at_measured.offset_m == pytest.approx(0.01, rel=0.2)
@@ -82,7 +82,7 @@ def test_measured_noise_sharpens_the_offset_of_a_flat_table_and_widens_a_rough_o
     assert at_measured.sigma_m / at_config.sigma_m == pytest.approx(
         measured.sigma_m / SIGMA0_M, rel=0.15)
     rough = shape(_bumpy(table_points(offset_m=0.01, noise_m=0.0003), 0.001)[0])
-    assert with_measured_noise(rough).offset_evidence().sigma_m > \
+    assert offset_evidence(with_measured_noise(rough)).sigma_m > \
         table_offset_evidence(rough).sigma_m
 
 

@@ -15,7 +15,8 @@ from r2s.diagnose.effects import get_effect
 from r2s.diagnose.stats.noise import mixed_sampling_bar
 from r2s.diagnose.stats.ranking import NoiseBar, fit_effect, supported
 from r2s.diagnose.stats.steps import leaves_structure
-from r2s.diagnose.stats.table_offset import corrected_table, table_offset_evidence
+from r2s.diagnose.stats.table_offset import (corrected_table, offset_evidence,
+                                             table_offset_evidence)
 from r2s.geometry.camera import intrinsics, look_at
 from r2s.geometry.lens import undistort_normalised
 
@@ -94,7 +95,7 @@ def test_table_shape_tells_an_offset_from_a_scale_and_a_lens():
     lens = Residuals(table_shape=shape(table_points(k1=-0.12)))
     lens_fit = get_effect("lens_distortion").fit(lens)
     off_on_lens = get_effect("depth_offset").fit(lens)
-    assert lens_fit.explained_sse > 0.9 * lens.table_shape.offset_evidence().sse_at_zero
+    assert lens_fit.explained_sse > 0.9 * offset_evidence(lens.table_shape).sse_at_zero
     assert off_on_lens.explained_sse < 0.7 * lens_fit.explained_sse
     left = table_offset_evidence(lens_fit.residuals_after.table_shape)
     assert left is None or abs(left.offset_m) < 0.002

@@ -360,17 +360,6 @@ class TableShapeData:
         """:class:`r2s.diagnose.stats.table_shape.TableTiles` of the points (computed once)."""
         return self._tiles
 
-    @cached_property
-    def _offset_evidence(self):
-        from r2s.diagnose.stats.table_offset import table_offset_evidence
-
-        return table_offset_evidence(self)
-
-    def offset_evidence(self):
-        """:class:`r2s.diagnose.stats.table_offset.TableOffsetEvidence` of the points: the
-        depth offset that makes the table flattest (computed once; None: no evidence)."""
-        return self._offset_evidence
-
 
 # ---- everything ---------------------------------------------------------------------------
 

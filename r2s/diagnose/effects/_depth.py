@@ -16,7 +16,8 @@ from r2s.diagnose.effects._depth_model import (corrected_registration, corrected
 from r2s.diagnose.stats.noise import mixed_sampling_bar, null_registrations, sampling_bar
 from r2s.diagnose.stats.table_height import height_evidence, with_height
 from r2s.diagnose.stats.table_offset import (MAX_TABLE_OFFSET_M, TableOffsetEvidence,
-                                             corrected_table, with_measured_noise)
+                                             corrected_table, offset_evidence,
+                                             with_measured_noise)
 from r2s.diagnose.effects.base import Effect, EffectFit, make_fit, not_identifiable
 from r2s.io.input_scene import InputScene
 
@@ -69,7 +70,7 @@ class DepthBiasEffect(Effect):
         if not self.fit_offset or self.fit_scale or residuals.table_shape is None:
             return None, ""
         # at the scene's own tile scatter (pooled with the configured level)
-        ev = with_measured_noise(residuals.table_shape).offset_evidence()
+        ev = offset_evidence(with_measured_noise(residuals.table_shape))
         if ev is None:
             return None, ""
         if abs(ev.offset_m) > MAX_TABLE_OFFSET_M:

@@ -125,6 +125,20 @@ def table_offset_evidence(shape: Optional[TableShapeData], step_m: float = GRID_
                                sse_at_zero=sse0)
 
 
+_EVIDENCE_KEY = "_r2s_offset_evidence"
+"""Where :func:`offset_evidence` keeps its result on the (frozen) data object."""
+
+
+def offset_evidence(shape: Optional[TableShapeData]) -> Optional[TableOffsetEvidence]:
+    """:func:`table_offset_evidence` of ``shape``, computed once per data object (kept in
+    its ``__dict__``, as ``functools.cached_property`` does; the data stays frozen)."""
+    if shape is None:
+        return None
+    if _EVIDENCE_KEY not in shape.__dict__:
+        shape.__dict__[_EVIDENCE_KEY] = table_offset_evidence(shape)
+    return shape.__dict__[_EVIDENCE_KEY]
+
+
 def table_noise_level(shape: TableShapeData, offset_m: float,
                       prior_tiles: float = NOISE_PRIOR_TILES) -> tuple[float, float]:
     """Noise level (m) of one tile mean and its degrees of freedom: the scatter of the
@@ -147,7 +161,7 @@ def with_measured_noise(shape: Optional[TableShapeData]) -> Optional[TableShapeD
     offset lies at the end of the grid: bent by something else)."""
     if shape is None:
         return None
-    ev = shape.offset_evidence()
+    ev = offset_evidence(shape)
     if ev is None or not np.isfinite(ev.sigma_m):
         return shape
     sigma, _ = table_noise_level(shape, ev.offset_m)
