@@ -5,7 +5,8 @@ model without it (:attr:`r2s.diagnose.effects.base.EffectFit.delta_bic`) plus it
 penalty (an effect whose wrong application does harm needs more evidence). An effect is
 supported when its score is below ``-min_evidence``; "no effect" wins otherwise. Effects whose
 scores lie within ``tie_tolerance`` of the best are indistinguishable on this data; among
-them the catalogue's preference decides, and the tie is reported.
+them the catalogue's preference decides (but not for an effect with a lower prior penalty
+than the best scorer's: its prior is in the scores already), and the tie is reported.
 
 With ``max_effects = 2`` the best effect is put into the model (its predicted residuals)
 and the remaining effects are fitted again to what is left.
@@ -79,10 +80,15 @@ def order_fits(fits: list[EffectFit], effects: dict[str, Effect],
     rest = weak + [f for f in fits if not f.identifiable]
     if not ok:
         return Round(tuple(rest))
-    best = ok[0].score
-    lead = [f for f in ok if f.score <= best + tie_tolerance]
+    top = ok[0]
+    # the preference breaks a tie only for an effect whose prior penalty is no lower than
+    # the best scorer's: one that ties only because the best scorer carries a penalty
+    # (a camera rotation 1.9 BIC units behind a table tilt that carries 2.77) would have
+    # its prior counted twice, once in the scores and again as the tie-break
+    lead = [f for f in ok if f is top or (f.score <= top.score + tie_tolerance
+                                            and f.penalty >= top.penalty)]
     lead.sort(key=lambda f: (effects[f.effect].preference, f.score))
-    tail = [f for f in ok if f.score > best + tie_tolerance]
+    tail = [f for f in ok if not any(f is g for g in lead)]
     first = lead[0]
     # indistinguishable on the data: raw delta BIC (no prior penalty) close to the first's
     same = [first] + [f for f in lead[1:] + tail
