@@ -62,3 +62,11 @@ def test_mass_properties_of_an_open_mesh_fall_back_to_a_closed_hull(open_hulls):
     np.testing.assert_allclose(props.com_in_object, 0.0, atol=1e-12)
 
 
+
+
+def test_a_flat_mesh_keeps_trimeshs_hull(open_hulls):
+    """Flat vertices enclose no volume: no rebuild is tried, and nothing raises."""
+    flat = trimesh.Trimesh([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0.1, 0.1, 0]],
+                           [[0, 1, 2], [1, 3, 2]], process=False)
+    hull = closed_convex_hull(flat)
+    assert not hull.is_volume

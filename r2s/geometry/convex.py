@@ -16,7 +16,7 @@ from typing import Literal
 
 import numpy as np
 import trimesh
-from scipy.spatial import ConvexHull
+from scipy.spatial import ConvexHull, QhullError
 
 CONVEX_VOLUME_RATIO = 0.9
 """A closed mesh whose volume is at least this fraction of its hull's is treated as convex."""
@@ -26,11 +26,15 @@ def closed_convex_hull(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """``mesh``'s convex hull as a closed mesh (same frame and units). trimesh's hull of a
     fine marching-cubes mesh (many points on each flat face) can come back not watertight
     (seen on a 2 mm completion of a long box); then the hull is rebuilt from qhull's
-    triangles as they are, which close. ``QhullError`` for flat or degenerate vertices."""
+    triangles as they are, which close. Flat or degenerate vertices, which enclose no
+    volume either way, get trimesh's hull as it is."""
     hull = mesh.convex_hull
     if hull.is_volume:
         return hull
-    qhull = ConvexHull(np.asarray(mesh.vertices, dtype=float))
+    try:
+        qhull = ConvexHull(np.asarray(mesh.vertices, dtype=float))
+    except QhullError:
+        return hull
     rebuilt = trimesh.Trimesh(qhull.points, qhull.simplices)
     rebuilt.remove_unreferenced_vertices()
     rebuilt.fix_normals()

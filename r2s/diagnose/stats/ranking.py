@@ -72,7 +72,8 @@ class Diagnosis:
 
 def order_fits(fits: list[EffectFit], effects: dict[str, Effect],
                tie_tolerance: float) -> Round:
-    """Best score first; the fits tying with the best are ordered by preference."""
+    """Best score first; the fits tying with the best (within ``tie_tolerance``, with a
+    prior penalty no lower than the best scorer's) are ordered by preference."""
     ok = sorted([f for f in fits if f.identifiable and f.above_noise], key=lambda f: f.score)
     # below the noise bar: what noise alone explains as well; ranked after the rest
     weak = sorted([f for f in fits if f.identifiable and not f.above_noise],
@@ -88,7 +89,8 @@ def order_fits(fits: list[EffectFit], effects: dict[str, Effect],
     lead = [f for f in ok if f is top or (f.score <= top.score + tie_tolerance
                                             and f.penalty >= top.penalty)]
     lead.sort(key=lambda f: (effects[f.effect].preference, f.score))
-    tail = [f for f in ok if not any(f is g for g in lead)]
+    in_lead = {id(f) for f in lead}
+    tail = [f for f in ok if id(f) not in in_lead]
     first = lead[0]
     # indistinguishable on the data: raw delta BIC (no prior penalty) close to the first's
     same = [first] + [f for f in lead[1:] + tail
