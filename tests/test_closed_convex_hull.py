@@ -68,5 +68,6 @@ def test_a_flat_mesh_keeps_trimeshs_hull(open_hulls):
     """Flat vertices enclose no volume: no rebuild is tried, and nothing raises."""
     flat = trimesh.Trimesh([[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0.1, 0.1, 0]],
                            [[0, 1, 2], [1, 3, 2]], process=False)
-    hull = closed_convex_hull(flat)
-    assert not hull.is_volume
+    with np.errstate(invalid="ignore", divide="ignore"):  # trimesh: a flat hull's centre
+        hull = closed_convex_hull(flat)
+        assert not hull.is_volume
