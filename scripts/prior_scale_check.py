@@ -19,7 +19,6 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import subprocess
@@ -28,6 +27,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -41,7 +41,8 @@ AT_BOUND = 0.005
 """A scale within this fraction of a bound counts as at the bound."""
 
 
-def _world_mesh(path: Path, world_from_object) -> "object":
+def _world_mesh(path: Path, world_from_object) -> trimesh.Trimesh:
+    """The mesh at ``path`` (object frame) moved to the world by (4, 4) ``world_from_object``."""
     return load_mesh(path).apply_transform(np.asarray(world_from_object, dtype=float))
 
 
