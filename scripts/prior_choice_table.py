@@ -6,9 +6,10 @@ prior_choice=prior`` and ``--set prior_choice=completion`` through the command l
 prints, per object with a prior, the scores init recorded for both candidates (silhouette
 IoU with the others z-buffered, UCD mm, free-space violation; r2s/geometry/prior_choice.py),
 the Chamfer distance (mm) of each candidate's init mesh against the gt object of the same
-id, how far each went when set down alone on the table (objects standing alone on it; the
-rest rule), and what ``prior_choice=auto`` would choose with the default margins (or those
-given) and the default rest rule.
+id, how far each went when set down alone on the table and how far its centre of mass went
+down (objects standing alone on it; the rest rule), each candidate's lowest point above the
+support plane (negative: into the table), and what ``prior_choice=auto`` would choose with
+the default margins (or those given) and the default rest rule.
 gt/ is read here only, to calibrate the margins; init never reads it. The copy's manifest
 is left recording ``prior_choice=completion``, which a later ``r2s run`` reuses: run it with
 ``--set init.prior_choice=auto`` to go back to the default.
@@ -39,22 +40,28 @@ from r2s.io.state import read_state  # noqa: E402
 from r2s.metrics.geometry import chamfer_distance_mm, posed  # noqa: E402
 
 
-def _init(root: Path, mode: str) -> dict[int, tuple[float, dict]]:
-    """Run init with ``prior_choice=mode``; id -> (CD mm against gt, recorded scores)."""
+def _init(root: Path, mode: str) -> dict[int, tuple[float, dict, float]]:
+    """Run init with ``prior_choice=mode``; id -> (CD mm against gt, recorded scores, the
+    mesh's lowest point above the support plane, mm: negative is below the table)."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
     subprocess.run([sys.executable, "-m", "r2s.cli", "init", str(root), "--set",
                     f"prior_choice={mode}"], check=True, env=env, capture_output=True)
     paths = ScenePaths(root)
     gt = {g.id: g for g in read_gt_scene(paths.gt_scene).objects}
     out = {}
-    for o in read_state(paths.stage_dir("init")).objects:
+    state = read_state(paths.stage_dir("init"))
+    plane_point = np.asarray(state.support.point, dtype=float)
+    plane_normal = np.asarray(state.support.normal, dtype=float)
+    for o in state.objects:
         record = getattr(o, "prior_choice", None)
         if record is None or o.id not in gt:
             continue
         mesh = posed(load_mesh(paths.stage_dir("init") / o.mesh), np.asarray(o.pose))
         truth = posed(load_mesh(paths.gt / gt[o.id].mesh),
                       np.asarray(gt[o.id].world_from_object))
-        out[o.id] = (chamfer_distance_mm(mesh, truth, seed=0), record)
+        lowest_mm = 1000.0 * float(np.min((np.asarray(mesh.vertices) - plane_point)
+                                          @ plane_normal))
+        out[o.id] = (chamfer_distance_mm(mesh, truth, seed=0), record, lowest_mm)
     return out
 
 
@@ -80,25 +87,29 @@ def main() -> None:
     args = parser.parse_args()
     margins = ChoiceMargins(args.iou_gain, args.ucd_gain_mm, args.free_space_slack)
     print("| scene | id | prior IoU / UCD / free | completion IoU / UCD / free "
-          "| alone on the table: prior / completion moved mm, turned deg "
-          "| CD prior [mm] | CD completion [mm] | auto chooses | better against gt |")
-    print("|---|---:|---|---|---|---:|---:|---|---|")
+          "| alone on the table: prior / completion moved mm, turned deg, COM drop mm "
+          "| lowest point above the table: prior / completion mm | CD prior [mm] "
+          "| CD completion [mm] | auto chooses | better against gt |")
+    print("|---|---:|---|---|---|---|---:|---:|---|---|")
     by_rest: list[tuple[float, float]] = []  # (CD prior, CD completion) the rest rule swaps
     chosen_cd: list[tuple[float, float, bool]] = []  # (CD prior, CD completion, replaced)
     for root in args.scenes:
         with_prior = _init(root, "prior")
         completed = _init(root, "completion")
         for i in sorted(with_prior):
-            cd_p, rec = with_prior[i]
+            cd_p, rec, low_p = with_prior[i]
             if rec["prior"] is None or rec["completion"] is None:
-                print(f"| {root.name} | {i} | - | not completed | - | {cd_p:.1f} | - | prior "
-                      "| - |")
+                print(f"| {root.name} | {i} | - | not completed | - | {low_p:.1f} / - "
+                      f"| {cd_p:.1f} | - | prior | - |")
                 continue
             cd_c = completed[i][0] if i in completed else float("nan")
+            low_c = completed[i][2] if i in completed else float("nan")
             p, c = ViewScore(**rec["prior"]), ViewScore(**rec["completion"])
             alone = rec.get("rest_alone")
             rest = None if alone is None else tuple(
-                Rest(alone[k]["moved_mm"] / 1000.0, alone[k]["turned_deg"])
+                Rest(alone[k]["moved_mm"] / 1000.0, alone[k]["turned_deg"],
+                     None if alone[k].get("com_drop_mm") is None
+                     else alone[k]["com_drop_mm"] / 1000.0)
                 for k in ("prior", "completion"))
             chosen, _ = choose(p, c, margins, rest)
             if chosen != choose(p, c, margins)[0]:
@@ -106,10 +117,12 @@ def main() -> None:
             best = "completion" if cd_c < cd_p else "prior"
             chosen_cd.append((cd_p, cd_c, chosen == "completion"))
             rest_txt = "not alone" if alone is None else " / ".join(
-                f"{alone[k]['moved_mm']:.0f}, {alone[k]['turned_deg']:.0f}"
+                f"{alone[k]['moved_mm']:.0f}, {alone[k]['turned_deg']:.0f}, "
+                f"{alone[k].get('com_drop_mm', float('nan')):.1f}"
                 for k in ("prior", "completion"))
             print(f"| {root.name} | {i} | {p.iou:.2f} / {p.ucd_mm:.1f} / {p.free_space:.3f} "
                   f"| {c.iou:.2f} / {c.ucd_mm:.1f} / {c.free_space:.3f} | {rest_txt} "
+                  f"| {low_p:.1f} / {low_c:.1f} "
                   f"| {cd_p:.1f} | {cd_c:.1f} | {chosen} | {best} |", flush=True)
     if chosen_cd:
         print("\n" + _summary(np.array(chosen_cd, dtype=float)))

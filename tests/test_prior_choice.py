@@ -90,6 +90,7 @@ def test_init_completes_a_prior_too_long_and_keeps_an_exact_one(tmp_path):
     # drops the 0.5 mm set-down gap)
     assert cube["rest_alone"]["prior"]["moved_mm"] < 2.0
     assert cube["rest_alone"]["prior"]["turned_deg"] < 1.0
+    assert abs(cube["rest_alone"]["prior"]["com_drop_mm"]) < 0.2  # the gap does not count
     assert result.summary["prior_choice"] == {"1": "completion", "2": "prior"}
     assert any(f.startswith("object 1: its prior was replaced by the completion")
                for f in result.summary["flags"])

@@ -48,11 +48,17 @@ class RestOnPlane:
     moved_m : translation of the object frame's origin (m), from the set-down pose.
     turned_deg : rotation angle (deg), from the set-down pose.
     lift_m : how far the pose was moved along the normal to set it down (m; > 0 = up).
+    com_drop_m : how far the centre of mass went down (m): its height above the hull's
+        lowest point (along the normal) at the set-down pose less that at the end. About 0
+        for a shape that rolls without losing height (a true ball, a can on its side: a
+        neutral rest, as good as any), > 0 for one that tips or rolls into a lower rest
+        (its underside or its proportions are wrong).
     """
 
     moved_m: float
     turned_deg: float
     lift_m: float
+    com_drop_m: float = 0.0
 
 
 def rest_on_plane(mesh: trimesh.Trimesh, world_from_object: np.ndarray,
@@ -94,5 +100,17 @@ def rest_on_plane(mesh: trimesh.Trimesh, world_from_object: np.ndarray,
         pb.disconnect(client)
     turn = end[:3, :3] @ pose[:3, :3].T
     angle = float(np.degrees(np.arccos(np.clip((np.trace(turn) - 1.0) / 2.0, -1.0, 1.0))))
+    drop = (_com_above_lowest_m(hull, com, pose, normal)
+            - _com_above_lowest_m(hull, com, end, normal))
     return RestOnPlane(moved_m=float(np.linalg.norm(end[:3, 3] - pose[:3, 3])),
-                       turned_deg=angle, lift_m=lift)
+                       turned_deg=angle, lift_m=lift, com_drop_m=drop)
+
+
+def _com_above_lowest_m(hull: trimesh.Trimesh, com_in_object: np.ndarray,
+                        world_from_object: np.ndarray, normal: np.ndarray) -> float:
+    """How far the centre of mass lies above the hull's lowest point along ``normal`` (m) at
+    ``world_from_object``: the height it has over the plane when resting there, whatever gap
+    or contact margin holds the body off the plane."""
+    rot = np.asarray(world_from_object, dtype=float)[:3, :3]
+    lowest = float(np.min((np.asarray(hull.vertices) @ rot.T) @ normal))
+    return float((rot @ np.asarray(com_in_object, dtype=float)) @ normal) - lowest

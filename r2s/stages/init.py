@@ -604,7 +604,7 @@ def _rest_alone(mesh: trimesh.Trimesh, world_from_object: np.ndarray, plane: Pla
     from r2s.sim.rest_on_plane import rest_on_plane  # pybullet: only where a prior is tested
 
     r = rest_on_plane(mesh, world_from_object, plane.point, plane.normal)
-    return Rest(moved_m=r.moved_m, turned_deg=r.turned_deg)
+    return Rest(moved_m=r.moved_m, turned_deg=r.turned_deg, com_drop_m=r.com_drop_m)
 
 
 def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneFit,
