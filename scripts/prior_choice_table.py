@@ -16,7 +16,7 @@ is left recording ``prior_choice=completion``, which a later ``r2s run`` reuses:
 
 Usage:
   python scripts/prior_choice_table.py SCENE [SCENE ...] [--iou-gain G] [--ucd-gain-mm U]
-      [--free-space-slack F]
+      [--free-space-slack F] [--set INIT_KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -40,12 +40,13 @@ from r2s.io.state import read_state  # noqa: E402
 from r2s.metrics.geometry import chamfer_distance_mm, posed  # noqa: E402
 
 
-def _init(root: Path, mode: str) -> dict[int, tuple[float, dict, float]]:
+def _init(root: Path, mode: str, extra: list[str] = ()) -> dict[int, tuple[float, dict, float]]:
     """Run init with ``prior_choice=mode``; id -> (CD mm against gt, recorded scores, the
     mesh's lowest point above the support plane, mm: negative is below the table)."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
+    sets = [a for kv in extra for a in ("--set", kv)]
     subprocess.run([sys.executable, "-m", "r2s.cli", "init", str(root), "--set",
-                    f"prior_choice={mode}"], check=True, env=env, capture_output=True)
+                    f"prior_choice={mode}", *sets], check=True, env=env, capture_output=True)
     paths = ScenePaths(root)
     gt = {g.id: g for g in read_gt_scene(paths.gt_scene).objects}
     out = {}
@@ -84,6 +85,8 @@ def main() -> None:
     parser.add_argument("--iou-gain", type=float, default=ChoiceMargins.iou_gain)
     parser.add_argument("--ucd-gain-mm", type=float, default=ChoiceMargins.ucd_gain_mm)
     parser.add_argument("--free-space-slack", type=float, default=ChoiceMargins.free_space_slack)
+    parser.add_argument("--set", dest="init_set", action="append", default=[],
+                        metavar="KEY=VALUE", help="another init option, for both runs")
     args = parser.parse_args()
     margins = ChoiceMargins(args.iou_gain, args.ucd_gain_mm, args.free_space_slack)
     print("| scene | id | prior IoU / UCD / free | completion IoU / UCD / free "
@@ -94,8 +97,8 @@ def main() -> None:
     by_rest: list[tuple[float, float]] = []  # (CD prior, CD completion) the rest rule swaps
     chosen_cd: list[tuple[float, float, bool]] = []  # (CD prior, CD completion, replaced)
     for root in args.scenes:
-        with_prior = _init(root, "prior")
-        completed = _init(root, "completion")
+        with_prior = _init(root, "prior", args.init_set)
+        completed = _init(root, "completion", args.init_set)
         for i in sorted(with_prior):
             cd_p, rec, low_p = with_prior[i]
             if rec["prior"] is None or rec["completion"] is None:
