@@ -51,14 +51,14 @@ class RestOnPlane:
     com_drop_m : how far the centre of mass went down (m): its height above the hull's
         lowest point (along the normal) at the set-down pose less that at the end. About 0
         for a shape that rolls without losing height (a true ball, a can on its side: a
-        neutral rest, as good as any), > 0 for one that tips or rolls into a lower rest
-        (its underside or its proportions are wrong).
+        neutral rest on a real table, though it still rolls away in the simulator), > 0 for
+        one that tips or rolls into a lower rest (its underside or proportions are wrong).
     """
 
     moved_m: float
     turned_deg: float
     lift_m: float
-    com_drop_m: float = 0.0
+    com_drop_m: float
 
 
 def rest_on_plane(mesh: trimesh.Trimesh, world_from_object: np.ndarray,
