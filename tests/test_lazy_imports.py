@@ -21,3 +21,18 @@ def test_open3d_drawing_is_imported_only_when_called():
     assert out[0] == "False False"
     # the real function ran: a plotly figure holding the three points
     assert out[1] == "True plotly.graph_objs._figure 3"
+
+
+STAGES_CHILD = """
+import sys
+import r2s.runner.pipeline
+print('scipy.stats' in sys.modules)
+"""
+
+
+def test_the_stages_do_not_import_scipy_stats():
+    """scipy.stats costs about a second per process; only diagnose's noise bars use it,
+    and they import it when they run (tests/test_diagnose_loop.py checks their values)."""
+    out = subprocess.run([sys.executable, "-c", STAGES_CHILD], capture_output=True,
+                         text=True, check=True).stdout.split("\n")
+    assert out[0] == "False"

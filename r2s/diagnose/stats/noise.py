@@ -15,8 +15,6 @@ from dataclasses import replace
 from typing import Callable, Iterator
 
 import numpy as np
-from scipy.stats import chi2
-from scipy.stats import f as f_dist
 
 from r2s.diagnose.data import RegistrationData, Residuals
 
@@ -74,6 +72,9 @@ def sampling_bar(reg: RegistrationData, n_params: int, quantile: float) -> float
     when the noise level is itself an estimate with ``reg.noise_dof`` degrees of freedom:
     ``k F(k, dof)`` (with 3 objects and the prior worth 4, F(1, 6) at 0.99 gives 13.7; the
     sample alone, F(1, 2), would give 98.5), or ``chi2(k)`` for a known level (the floor)."""
+    from scipy.stats import chi2  # about 1 s to import: only where diagnose ranks effects
+    from scipy.stats import f as f_dist
+
     if reg.noise_dof is None:
         return float(chi2.ppf(quantile, n_params))
     return float(n_params * f_dist.ppf(quantile, n_params, reg.noise_dof))
