@@ -29,6 +29,7 @@ import numpy as np
 import open3d as o3d
 from PIL import Image, ImageDraw
 from scipy import ndimage
+import trimesh
 
 from r2s.geometry.camera import backproject
 from r2s.render.gbuffer import rasterize
@@ -167,6 +168,9 @@ class ObjectObservation:
     """free-space pixels / mask pixels (None for an empty mask)."""
     displacement_m: Optional[float] = None
     displacement_deg: Optional[float] = None
+    iou_seen: Optional[float] = None
+    """The silhouette IoU of the same mesh at its init pose (where it was seen), the other
+    objects at theirs: what the stages after init kept of it (None without an init pose)."""
     missing: bool = False
     """True for an instance of the masks that the reconstruction has no object for: it
     counts as IoU 0 in the pooled and the worst IoU (nothing was rendered there)."""
@@ -242,6 +246,8 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
     lost = [int(i) for i in (mask_ids if mask_ids is not None else ()) if int(i) not in
             {int(j) for j in ids}]
     per_iou, pooled = silhouette_iou(rendered.ids, masks, [*ids, *lost])
+    seen_iou = _iou_where_seen(meshes_world, ids, K, world_from_camera, masks,
+                               init_world_from_object, world_from_object)
     violation = np.zeros(masks.shape, dtype=bool)
     objects = []
     for mesh, i in zip(meshes_world, ids):
@@ -263,7 +269,8 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
             ucd_mm=None if ucd is None else 1000.0 * ucd,
             free_space_px=int(fs.sum()),
             free_space_violation=float(fs.sum()) / mask_px if mask_px else None,
-            displacement_m=disp[0], displacement_deg=disp[1]))
+            displacement_m=disp[0], displacement_deg=disp[1],
+            iou_seen=seen_iou.get(int(i))))
     for i in lost:
         mask_px = int((masks == i).sum())
         objects.append(ObjectObservation(
@@ -271,6 +278,30 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
             free_space_px=0, free_space_violation=None, missing=True))
     return SceneObservation(objects=objects, pooled_iou=pooled, violation_map=violation,
                             rendered=rendered)
+
+
+def _iou_where_seen(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
+                    world_from_camera: np.ndarray, masks: np.ndarray,
+                    init_world_from_object: Optional[dict[int, np.ndarray]],
+                    world_from_object: Optional[dict[int, np.ndarray]]) -> dict[int, float]:
+    """id -> silhouette IoU of each mesh moved back to its init pose (``init @ inv(current)``
+    applied to the world-frame mesh), all objects rendered there together; empty unless
+    both pose sets cover every id."""
+    if init_world_from_object is None or world_from_object is None:
+        return {}
+    keys = [int(i) for i in ids]
+    if not all(i in init_world_from_object and i in world_from_object for i in keys):
+        return {}
+    back = []
+    for mesh, i in zip(meshes_world, keys):
+        to_seen = np.asarray(init_world_from_object[i], dtype=float) @ np.linalg.inv(
+            np.asarray(world_from_object[i], dtype=float))
+        back.append(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+                    .apply_transform(to_seen))
+    height, width = masks.shape
+    rendered = render_objects(back, keys, K, world_from_camera, width, height)
+    per_iou, _ = silhouette_iou(rendered.ids, masks, keys)
+    return {i: v for i, v in per_iou.items() if v is not None}
 
 
 def observation_picture(rgb: np.ndarray, rendered_ids: np.ndarray, violation: np.ndarray,

@@ -8,6 +8,9 @@ each object that
 * moved farther than a tolerance from its init pose (where it was seen), or
 * covers too little of its own mask (silhouette IoU below ``min_iou`` for a mask of at
   least ``LARGE_MASK_PX`` pixels), or
+* lost most of the overlap with its mask that it had where it was seen (IoU below
+  ``min_iou_kept`` times its IoU at the init pose, for any mask size: a 30 mm sliver
+  moved 7 mm is far from where it was seen though within ``displacement_m``), or
 * fills space the camera saw empty (free-space violation above ``max_free_space``), or
 * was flagged by an earlier stage (``earlier_flags``, e.g. physopt's repairs).
 
@@ -39,6 +42,10 @@ class FlagTolerances:
     displacement_deg: float = SEEN_TOLERANCE_DEG
     min_iou: float = 0.5
     max_free_space: float = 0.5
+    min_iou_kept: float = 0.5
+    min_iou_seen: float = 0.3
+    """The IoU-kept test applies to objects that matched their mask at least this well
+    where they were seen."""
 
 
 def _round(v: Optional[float], digits: int) -> Optional[float]:
@@ -54,6 +61,18 @@ def displacement_reason(displacement_m: Optional[float], displacement_deg: Optio
     if displacement_deg is not None and displacement_deg > tol.displacement_deg:
         parts.append(f"turned {displacement_deg:.0f} deg (> {tol.displacement_deg:.0f} deg)")
     return " and ".join(parts) + " from where it was seen" if parts else None
+
+
+def _iou_lost(iou: Optional[float], iou_seen: Optional[float],
+              tol: FlagTolerances) -> Optional[str]:
+    """Why an object lost most of its overlap with its mask since its init pose, or None."""
+    if iou_seen is None or iou_seen < tol.min_iou_seen:
+        return None
+    now = iou or 0.0
+    if now >= tol.min_iou_kept * iou_seen:
+        return None
+    return (f"silhouette IoU fell from {iou_seen:.2f} where it was seen to {now:.2f} "
+            f"(< {tol.min_iou_kept:.0%} of it)")
 
 
 @dataclass
@@ -101,11 +120,15 @@ def check_observation(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
             reasons.append(moved)
         if o.mask_px >= LARGE_MASK_PX and (o.iou or 0.0) < tolerances.min_iou:
             reasons.append(f"silhouette IoU {o.iou or 0.0:.2f} < {tolerances.min_iou:.2f}")
+        kept = _iou_lost(o.iou, o.iou_seen, tolerances)
+        if kept:
+            reasons.append(kept)
         if o.free_space_violation is not None and o.free_space_violation > tolerances.max_free_space:
             reasons.append(f"fills space the camera saw empty ({o.free_space_violation:.2f} of "
                            f"its mask area > {tolerances.max_free_space:.2f})")
         blocks[o.id] = {
-            "iou": _round(o.iou, 4), "ucd_mm": _round(o.ucd_mm, 3),
+            "iou": _round(o.iou, 4), "iou_seen": _round(o.iou_seen, 4),
+            "ucd_mm": _round(o.ucd_mm, 3),
             "free_space_violation": _round(o.free_space_violation, 4),
             "displacement_m": _round(o.displacement_m, 5),
             "displacement_deg": _round(o.displacement_deg, 3),

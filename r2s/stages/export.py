@@ -54,10 +54,14 @@ class Options(StageOptions, BodyParams):
                                 "below this (masks of at least 1000 px).")
     flag_max_free_space: float = Field(0.5, ge=0, description="... or that fills more space "
                                        "the camera saw empty than this share of its mask.")
+    flag_min_iou_kept: float = Field(0.5, ge=0, le=1, description="... or whose silhouette "
+                                     "IoU fell below this share of its IoU at the init pose "
+                                     "(where it was seen; any mask size; 0 = off).")
 
     def tolerances(self) -> FlagTolerances:
         return FlagTolerances(self.flag_displacement_m, self.flag_displacement_deg,
-                              self.flag_min_iou, self.flag_max_free_space)
+                              self.flag_min_iou, self.flag_max_free_space,
+                              min_iou_kept=self.flag_min_iou_kept)
 
 
 def _resolve_source(paths: ScenePaths, options: Options, manifest: Manifest) -> str:
