@@ -190,19 +190,23 @@ def test_an_object_that_lost_most_of_its_mask_since_init_is_flagged():
     """Two slabs seen exactly where they lie (IoU 1 at the init pose), then both moved 6 px
     (9.6 mm at 0.8 m, under the 20 mm displacement tolerance). The 10 x 10 px one keeps
     4 x 10 of its 100 px: IoU 40 / 160 = 0.25, under half of 1, flagged; the 60 x 60 px one
-    keeps 54 x 60: IoU 3240 / 3960 = 0.818, not flagged."""
+    keeps 54 x 60: IoU 3240 / 3960 = 0.818, not flagged. A third, lower slab (8 x 10 px)
+    that did not move is now hidden but for 2 of its 8 columns by the small one moved over
+    it: IoU 0.25, but its own move cost it nothing (``iou_seen`` 0.25 too), not flagged."""
     from r2s.metrics.observation_check import FlagTolerances, check_observation
 
     small, large = slab(20, 29, 20, 29, top_z=0.2), slab(70, 129, 30, 89, top_z=0.2)
-    masks = mask_of(20, 29, 20, 29, 1) + mask_of(70, 129, 30, 89, 2)
-    depth = np.where(masks > 0, 0.8, 1.0)
+    low = slab(30, 37, 20, 29, top_z=0.1)
+    masks = mask_of(20, 29, 20, 29, 1) + mask_of(70, 129, 30, 89, 2) + mask_of(30, 37, 20, 29, 3)
+    depth = np.where(masks == 3, 0.9, np.where(masks > 0, 0.8, 1.0))
     shift = np.eye(4)
     shift[0, 3] = 6 * 0.8 / F
-    moved = [m.copy().apply_transform(shift) for m in (small, large)]
-    check = check_observation(moved, [1, 2], K, CAMERA, depth, masks,
-                              world_from_object={1: shift, 2: shift},
-                              init_world_from_object={1: np.eye(4), 2: np.eye(4)},
-                              centres_in_object={1: small.centroid, 2: large.centroid},
+    moved = [m.copy().apply_transform(shift) for m in (small, large)] + [low]
+    check = check_observation(moved, [1, 2, 3], K, CAMERA, depth, masks,
+                              world_from_object={1: shift, 2: shift, 3: np.eye(4)},
+                              init_world_from_object={i: np.eye(4) for i in (1, 2, 3)},
+                              centres_in_object={1: small.centroid, 2: large.centroid,
+                                                 3: low.centroid},
                               tolerances=FlagTolerances(max_free_space=10.0))
     blocks = check.blocks
     assert blocks[1]["iou_seen"] == pytest.approx(1.0, abs=1e-9)
@@ -212,3 +216,6 @@ def test_an_object_that_lost_most_of_its_mask_since_init_is_flagged():
     assert "fell from 1.00 where it was seen to 0.25" in blocks[1]["reason"]
     assert blocks[2]["iou"] == pytest.approx(3240 / 3960, abs=1e-4)  # rounded to 4 digits
     assert not blocks[2]["flagged"]
+    assert blocks[3]["iou"] == pytest.approx(0.25, abs=1e-9)
+    assert blocks[3]["iou_seen"] == pytest.approx(0.25, abs=1e-9)
+    assert not blocks[3]["flagged"]

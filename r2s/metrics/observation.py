@@ -40,6 +40,10 @@ FREE_SPACE_MARGIN_M = 0.015
 """A rendered surface must be at least this far in front of the observed depth."""
 LARGE_MASK_PX = 1000
 """The worst-object IoU of a scene is taken over objects with at least this many mask px."""
+SEEN_MOVE_M = 0.002
+SEEN_TURN_DEG = 2.0
+"""An object that moved less than this (and turned less than ``SEEN_TURN_DEG``) from its
+init pose is not rendered back there for ``iou_seen``: its own move cost it nothing."""
 PICTURE_PALETTE = ((31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189),
                    (140, 86, 75), (227, 119, 194), (188, 189, 34), (23, 190, 207),
                    (127, 127, 127), (255, 255, 255))
@@ -169,8 +173,10 @@ class ObjectObservation:
     displacement_m: Optional[float] = None
     displacement_deg: Optional[float] = None
     iou_seen: Optional[float] = None
-    """The silhouette IoU of the same mesh at its init pose (where it was seen), the other
-    objects at theirs: what the stages after init kept of it (None without an init pose)."""
+    """The silhouette IoU the object has when it alone is moved back to its init pose
+    (where it was seen), every other object where it is now: against ``iou``, what its own
+    move cost it, not what a neighbour moved in front of it hides (None without an init
+    pose; ``iou`` itself when it moved less than ``SEEN_MOVE_M`` and ``SEEN_TURN_DEG``)."""
     missing: bool = False
     """True for an instance of the masks that the reconstruction has no object for: it
     counts as IoU 0 in the pooled and the worst IoU (nothing was rendered there)."""
@@ -246,11 +252,9 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
     lost = [int(i) for i in (mask_ids if mask_ids is not None else ()) if int(i) not in
             {int(j) for j in ids}]
     per_iou, pooled = silhouette_iou(rendered.ids, masks, [*ids, *lost])
-    seen_iou = _iou_where_seen(meshes_world, ids, K, world_from_camera, masks,
-                               init_world_from_object, world_from_object)
     violation = np.zeros(masks.shape, dtype=bool)
     objects = []
-    for mesh, i in zip(meshes_world, ids):
+    for k, (mesh, i) in enumerate(zip(meshes_world, ids)):
         own = masks == i
         mask_px = int(own.sum())
         pts = backproject(depth_m, K, world_from_camera, mask=own)
@@ -263,6 +267,13 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
                 and i in world_from_object and i in centres_in_object):
             disp = pose_displacement(init_world_from_object[i], world_from_object[i],
                                      centres_in_object[i])
+        iou_seen = None
+        if disp[0] is not None:
+            iou_seen = per_iou[int(i)]  # it did not move: its own move cost it nothing
+            if disp[0] > SEEN_MOVE_M or disp[1] > SEEN_TURN_DEG:
+                iou_seen = _iou_back_where_seen(meshes_world, ids, k, init_world_from_object[i],
+                                                world_from_object[i], K, world_from_camera,
+                                                masks)
         objects.append(ObjectObservation(
             id=int(i), mask_px=mask_px, rendered_px=int((rendered.ids == i).sum()),
             observed_points=int(len(pts)), iou=per_iou[int(i)],
@@ -270,7 +281,7 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
             free_space_px=int(fs.sum()),
             free_space_violation=float(fs.sum()) / mask_px if mask_px else None,
             displacement_m=disp[0], displacement_deg=disp[1],
-            iou_seen=seen_iou.get(int(i))))
+            iou_seen=iou_seen))
     for i in lost:
         mask_px = int((masks == i).sum())
         objects.append(ObjectObservation(
@@ -280,28 +291,22 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
                             rendered=rendered)
 
 
-def _iou_where_seen(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
-                    world_from_camera: np.ndarray, masks: np.ndarray,
-                    init_world_from_object: Optional[dict[int, np.ndarray]],
-                    world_from_object: Optional[dict[int, np.ndarray]]) -> dict[int, float]:
-    """id -> silhouette IoU of each mesh moved back to its init pose (``init @ inv(current)``
-    applied to the world-frame mesh), all objects rendered there together; empty unless
-    both pose sets cover every id."""
-    if init_world_from_object is None or world_from_object is None:
-        return {}
-    keys = [int(i) for i in ids]
-    if not all(i in init_world_from_object and i in world_from_object for i in keys):
-        return {}
-    back = []
-    for mesh, i in zip(meshes_world, keys):
-        to_seen = np.asarray(init_world_from_object[i], dtype=float) @ np.linalg.inv(
-            np.asarray(world_from_object[i], dtype=float))
-        back.append(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
-                    .apply_transform(to_seen))
+def _iou_back_where_seen(meshes_world: Sequence, ids: Sequence[int], k: int,
+                         init_world_from_object: np.ndarray, world_from_object: np.ndarray,
+                         K: np.ndarray, world_from_camera: np.ndarray,
+                         masks: np.ndarray) -> Optional[float]:
+    """Silhouette IoU of object ``k`` (index into ``meshes_world``/``ids``) moved back to
+    its init pose (``init @ inv(current)`` applied to its world-frame mesh), every other
+    object rendered where it is now: what the object's own move cost it."""
+    to_seen = np.asarray(init_world_from_object, dtype=float) @ np.linalg.inv(
+        np.asarray(world_from_object, dtype=float))
+    mesh = meshes_world[k]
+    back = list(meshes_world)
+    back[k] = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).apply_transform(to_seen)
     height, width = masks.shape
-    rendered = render_objects(back, keys, K, world_from_camera, width, height)
-    per_iou, _ = silhouette_iou(rendered.ids, masks, keys)
-    return {i: v for i, v in per_iou.items() if v is not None}
+    rendered = render_objects(back, ids, K, world_from_camera, width, height)
+    per_iou, _ = silhouette_iou(rendered.ids, masks, [int(ids[k])])
+    return per_iou[int(ids[k])]
 
 
 def observation_picture(rgb: np.ndarray, rendered_ids: np.ndarray, violation: np.ndarray,

@@ -8,9 +8,10 @@ each object that
 * moved farther than a tolerance from its init pose (where it was seen), or
 * covers too little of its own mask (silhouette IoU below ``min_iou`` for a mask of at
   least ``LARGE_MASK_PX`` pixels), or
-* lost most of the overlap with its mask that it had where it was seen (IoU below
-  ``min_iou_kept`` times its IoU at the init pose, for any mask size: a 30 mm sliver
-  moved 7 mm is far from where it was seen though within ``displacement_m``), or
+* lost by its own move most of the overlap with its mask that it had where it was seen
+  (IoU below ``min_iou_kept`` times the IoU it has when it alone is put back at its init
+  pose, ``iou_seen``; any mask size: a 30 mm sliver moved 7 mm is far from where it was
+  seen though within ``displacement_m``), or
 * fills space the camera saw empty (free-space violation above ``max_free_space``), or
 * was flagged by an earlier stage (``earlier_flags``, e.g. physopt's repairs).
 
@@ -65,7 +66,8 @@ def displacement_reason(displacement_m: Optional[float], displacement_deg: Optio
 
 def _iou_lost(iou: Optional[float], iou_seen: Optional[float],
               tol: FlagTolerances) -> Optional[str]:
-    """Why an object lost most of its overlap with its mask since its init pose, or None."""
+    """Why an object's own move since its init pose lost it most of its overlap with its
+    mask (``iou`` against ``iou_seen``), or None."""
     if iou_seen is None or iou_seen < tol.min_iou_seen:
         return None
     now = iou or 0.0

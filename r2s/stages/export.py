@@ -55,8 +55,9 @@ class Options(StageOptions, BodyParams):
     flag_max_free_space: float = Field(0.5, ge=0, description="... or that fills more space "
                                        "the camera saw empty than this share of its mask.")
     flag_min_iou_kept: float = Field(0.5, ge=0, le=1, description="... or whose silhouette "
-                                     "IoU fell below this share of its IoU at the init pose "
-                                     "(where it was seen; any mask size; 0 = off).")
+                                     "IoU fell below this share of the IoU it has when it "
+                                     "alone is put back at its init pose, where it was seen "
+                                     "(any mask size; 0 = off).")
 
     def tolerances(self) -> FlagTolerances:
         return FlagTolerances(self.flag_displacement_m, self.flag_displacement_deg,
