@@ -33,6 +33,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from r2s.geometry.prior_choice import ChoiceMargins, Rest, ViewScore, choose  # noqa: E402
+from r2s.geometry.plane import signed_distance  # noqa: E402
 from r2s.io.mesh_io import load_mesh  # noqa: E402
 from r2s.io.paths import ScenePaths  # noqa: E402
 from r2s.io.scene_json import read_gt_scene  # noqa: E402
@@ -51,8 +52,6 @@ def _init(root: Path, mode: str, extra: list[str] = ()) -> dict[int, tuple[float
     gt = {g.id: g for g in read_gt_scene(paths.gt_scene).objects}
     out = {}
     state = read_state(paths.stage_dir("init"))
-    plane_point = np.asarray(state.support.point, dtype=float)
-    plane_normal = np.asarray(state.support.normal, dtype=float)
     for o in state.objects:
         record = getattr(o, "prior_choice", None)
         if record is None or o.id not in gt:
@@ -60,8 +59,8 @@ def _init(root: Path, mode: str, extra: list[str] = ()) -> dict[int, tuple[float
         mesh = posed(load_mesh(paths.stage_dir("init") / o.mesh), np.asarray(o.pose))
         truth = posed(load_mesh(paths.gt / gt[o.id].mesh),
                       np.asarray(gt[o.id].world_from_object))
-        lowest_mm = 1000.0 * float(np.min((np.asarray(mesh.vertices) - plane_point)
-                                          @ plane_normal))
+        lowest_mm = 1000.0 * float(np.min(signed_distance(mesh.vertices, state.support.point,
+                                                          state.support.normal)))
         out[o.id] = (chamfer_distance_mm(mesh, truth, seed=0), record, lowest_mm)
     return out
 
@@ -110,10 +109,7 @@ def main() -> None:
             p, c = ViewScore(**rec["prior"]), ViewScore(**rec["completion"])
             alone = rec.get("rest_alone")
             rest = None if alone is None else tuple(
-                Rest(alone[k]["moved_mm"] / 1000.0, alone[k]["turned_deg"],
-                     None if alone[k].get("com_drop_mm") is None
-                     else alone[k]["com_drop_mm"] / 1000.0)
-                for k in ("prior", "completion"))
+                Rest.from_dict(alone[k]) for k in ("prior", "completion"))
             chosen, _ = choose(p, c, margins, rest)
             if chosen != choose(p, c, margins)[0]:
                 by_rest.append((cd_p, cd_c))

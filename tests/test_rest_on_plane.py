@@ -72,6 +72,10 @@ def test_a_prior_that_rolls_level_still_counts_as_not_resting():
     assert Rest(0.06, 90.0, 0.0003).as_dict() == {"moved_mm": 60.0, "turned_deg": 90.0,
                                                  "com_drop_mm": 0.3}
     assert "com_drop_mm" not in Rest(0.06, 90.0).as_dict()  # not measured: left out
+    for rest in (level, Rest(0.06, 90.0)):
+        back = Rest.from_dict(rest.as_dict())
+        assert back.as_dict() == rest.as_dict() and (back.com_drop_m is None) == (
+            rest.com_drop_m is None)
 
 
 def test_an_object_alone_on_the_table_and_one_on_a_plate():

@@ -112,6 +112,13 @@ class Rest:
             out["com_drop_mm"] = round(1000 * self.com_drop_m, 2)
         return out
 
+    @staticmethod
+    def from_dict(record: dict) -> "Rest":
+        """The inverse of :meth:`as_dict` (a state's ``prior_choice.rest_alone`` entry)."""
+        drop = record.get("com_drop_mm")
+        return Rest(moved_m=record["moved_mm"] / 1000.0, turned_deg=record["turned_deg"],
+                    com_drop_m=None if drop is None else drop / 1000.0)
+
     def describe(self) -> str:
         """'moved 30 mm, turned 41 deg and went down 2.5 mm' (the drop where measured)."""
         text = f"moved {1000 * self.moved_m:.0f} mm, turned {self.turned_deg:.0f} deg"
