@@ -123,7 +123,8 @@ def merged_fragments(scene: InputScene) -> InputScene:
     declared id is kept over an undeclared one)."""
     protected = [o.id for o in scene.objects if o.prior_mesh is not None]
     declared = [o.id for o in scene.objects if o.declared]
-    parents = fragment_parents(scene.masks, scene.depth_m, scene.rgb, protected, declared)
+    parents = fragment_parents(scene.masks, scene.depth_m, scene.rgb, protected, declared,
+                               K=scene.camera.K)
     parents = {f: p for f, p in parents.items()
                if f in scene.ids and p[0] in scene.ids}
     if not parents:

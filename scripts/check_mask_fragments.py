@@ -28,14 +28,15 @@ from r2s.geometry.mask_fragments import fragment_parents  # noqa: E402
 from r2s.io.input_scene import load_input  # noqa: E402
 
 
-def check(scene: Path) -> dict[str, int]:
+def check(scene: Path, occluded: bool = True) -> dict[str, int]:
     view = load_input(scene)
     gt = json.loads((scene / "gt" / "scene.json").read_text())
     extra = {int(k): int(v) for k, v in
              gt.get("realism", {}).get("masks", {}).get("extra_ids", {}).items()}
     protected = [o.id for o in view.objects if o.prior_mesh is not None]
     declared = [o.id for o in view.objects if o.declared]
-    parents = fragment_parents(view.masks, view.depth_m, view.rgb, protected, declared)
+    parents = fragment_parents(view.masks, view.depth_m, view.rgb, protected, declared,
+                               view.camera.K if occluded else None)
 
     def owner(i: int) -> int:
         return extra.get(i, i)  # the gt object an id belongs to
@@ -67,10 +68,12 @@ def check(scene: Path) -> dict[str, int]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scenes", nargs="+", type=Path)
+    ap.add_argument("--no-occluded", action="store_true",
+                    help="the boundary test only (no pieces joined across an occluder)")
     args = ap.parse_args()
     total: dict[str, int] = {}
     for scene in args.scenes:
-        counts = check(scene)
+        counts = check(scene, occluded=not args.no_occluded)
         print(f"{scene.name}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
         for k, v in counts.items():
             total[k] = total.get(k, 0) + v

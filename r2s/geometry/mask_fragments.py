@@ -33,10 +33,12 @@ Pixel ``(row, col)``; depth along the camera z axis in metres, NaN = no reading.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Iterable, Optional
 
 import numpy as np
 from scipy import ndimage
+
+from r2s.geometry.occluded_fragments import occluded_parents
 
 JUMP_MIN_M = 0.006
 JUMP_FRACTION = 0.01
@@ -214,11 +216,13 @@ def _outline_fraction(masks: np.ndarray, small: int, large: int) -> float:
 
 
 def fragment_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
-                     protected_ids: Iterable[int] = (), declared_ids: Iterable[int] = ()
-                     ) -> dict[int, tuple[int, str]]:
+                     protected_ids: Iterable[int] = (), declared_ids: Iterable[int] = (),
+                     K: Optional[np.ndarray] = None) -> dict[int, tuple[int, str]]:
     """``{fragment id: (the id of the object it is part of, why)}`` (see the module
     docstring). ``protected_ids``: ids that are whole objects (they have a shape prior);
-    ``declared_ids``: ids the user named (kept over undeclared ones when merged)."""
+    ``declared_ids``: ids the user named (kept over undeclared ones when merged). With the
+    camera's ``K`` (3, 3), ids left whole by the boundary test are then tested for pieces
+    seen past an occluder (:mod:`r2s.geometry.occluded_fragments`)."""
     protected = set(int(i) for i in protected_ids)
     declared = set(int(i) for i in declared_ids) | protected
     parent: dict[int, tuple[int, str]] = {}
@@ -246,6 +250,21 @@ def fragment_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
             par = parent[par][0]
         if par != frag:
             resolved[frag] = (par, why)
+    if K is None:
+        return resolved
+    bridged = occluded_parents(merge_masks(masks, resolved), depth_m, rgb, K, protected)
+    for piece in list(bridged):  # a piece of a piece: to the root
+        par, why = bridged[piece]
+        while par in bridged:
+            par = bridged[par][0]
+        bridged[piece] = (par, why)
+    resolved.update(bridged)
+    for piece, (root, why) in bridged.items():
+        if piece in declared and root not in declared and root not in resolved:
+            # the declared id names the object (once): the root and its other pieces go to it
+            resolved = {f: (piece if p == root else p, w)
+                        for f, (p, w) in resolved.items() if f != piece}
+            resolved[root] = (piece, why)
     return resolved
 
 
