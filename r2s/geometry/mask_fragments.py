@@ -253,11 +253,6 @@ def fragment_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
     if K is None:
         return resolved
     bridged = occluded_parents(merge_masks(masks, resolved), depth_m, rgb, K, protected)
-    for piece in list(bridged):  # a piece of a piece: to the root
-        par, why = bridged[piece]
-        while par in bridged:
-            par = bridged[par][0]
-        bridged[piece] = (par, why)
     resolved.update(bridged)
     for piece, (root, why) in bridged.items():
         if piece in declared and root not in declared and root not in resolved:

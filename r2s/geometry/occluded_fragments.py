@@ -186,8 +186,8 @@ def bridge(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray, K: np.ndarra
 def occluded_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray, K: np.ndarray,
                      protected_ids: Iterable[int] = (), skip_ids: Iterable[int] = ()
                      ) -> dict[int, tuple[int, str]]:
-    """``{piece id: (the id of the object it is part of, why)}`` for the pieces of the
-    module docstring. ``protected_ids`` (ids with a shape prior: whole objects) are never
+    """``{piece id: (the id of the whole object it is part of, why)}`` for the pieces of
+    the module docstring. ``protected_ids`` (ids with a shape prior: whole objects) are never
     pieces; ``skip_ids`` (ids already joined to another) are neither pieces nor parents."""
     masks = np.asarray(masks)
     protected = {int(i) for i in protected_ids}
@@ -205,4 +205,9 @@ def occluded_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray, K:
         if found:
             best = min(found, key=lambda f: f.gap_m)
             out[small] = (best.large_id, best.describe())
+    for piece in list(out):  # a piece of a piece: to the root (sizes grow along a chain)
+        root, why = out[piece]
+        while root in out:
+            root = out[root][0]
+        out[piece] = (root, why)
     return out
