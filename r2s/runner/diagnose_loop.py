@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import shutil
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Optional
 
@@ -34,6 +34,7 @@ from r2s.diagnose.stats.blocks import blocks_of, total_sse
 from r2s.diagnose.effects.base import Effect, EffectFit
 from r2s.diagnose.stats.ranking import NoiseBar, Round, rank, supported
 from r2s.runner.rerun import rerun_with_effects, temporary_root
+from r2s.diagnose.measure.reconstruction_jumps import reconstruction_jumps
 from r2s.diagnose.measure.scene_dir import Measured, MeasureSettings, measure_scene, scene_gt_errors
 from r2s.diagnose.stats.steps import StepJudgement, claimed_blocks, judge_step, leaves_structure
 from r2s.diagnose.stats.colour_test import Z_THRESHOLD, ColourFinding, test_surface_colour
@@ -58,6 +59,7 @@ class LoopConfig:
     colour_z: float = Z_THRESHOLD
     edge_shift_px: float = MIN_SHIFT_PX
     joint_refit: bool = True
+    jump_tolerance_m: float = 0.02
     lookahead: bool = True
 
 
@@ -169,10 +171,31 @@ def _effect_step(root: Path, settings: MeasureSettings, cfg: LoopConfig, copies:
     copy, stages = copies.rerun(root, kept + [fit], cfg, k, progress)
     after = measure_scene(copy, settings, None)
     gt_after = scene_gt_errors(copy)
-    judgement = judge_step(fit, current.residuals, after.residuals)
+    judgement = _unless_jumped(judge_step(fit, current.residuals, after.residuals),
+                               copies.current or root, copy, stages, cfg)
     step = Step(k, "effect", [fit], rnd, judgement, stages, _total(current), _total(after),
                 gt_now, gt_after, skipped)
     return step, after, gt_after, copy
+
+
+def _unless_jumped(judgement: StepJudgement, before_root: Path, after_root: Path,
+                   stages: list, cfg: LoopConfig) -> StepJudgement:
+    """``judgement``, reverted when the rerun's init moved an object's reconstruction
+    further than its observed points moved and away from its support
+    (r2s.diagnose.measure.reconstruction_jumps): a fit that flipped off its support is not
+    the effect's doing, and the residual the effect claims cannot tell the twin got worse."""
+    if not judgement.kept or cfg.jump_tolerance_m <= 0 or "init" not in stages:
+        return judgement
+    before, after = Path(before_root) / "init", Path(after_root) / "init"
+    if not (before / "state.json").is_file() or not (after / "state.json").is_file():
+        return judgement
+    jumps = [j for j in reconstruction_jumps(before, after, cfg.jump_tolerance_m)
+             if j.lifts_off()]
+    if not jumps:
+        return judgement
+    return replace(judgement, kept=False,
+                   reason=f"reverted: {judgement.reason}, but {jumps[0].describe()} in the "
+                          "rerun: a fit that flipped, not the effect")
 
 
 def _joint_refit(root: Path, settings: MeasureSettings, cfg: LoopConfig, copies: _Copies,
@@ -202,6 +225,7 @@ def _joint_refit(root: Path, settings: MeasureSettings, cfg: LoopConfig, copies:
     judgement = StepJudgement(claims, sb, sp, sa, kept_it,
                               (f"joint refit kept: {sb:.1f} -> {sa:.1f}" if kept_it else
                                f"joint refit reverted: {sb:.1f} -> {sa:.1f}"))
+    judgement = _unless_jumped(judgement, copies.current or root, copy, stages, cfg)
     step = Step(k, "joint refit", increments, None, judgement, stages, _total(current),
                 _total(after), gt_now, gt_after)
     return step, after, gt_after, copy, increments

@@ -56,6 +56,11 @@ class Options(StageOptions):
                                                "what it leaves) instead of one at a time.")
     joint_refit: bool = Field(True, description="Refit interacting kept effects together at "
                                                 "the end (one more rerun).")
+    jump_tolerance_m: float = Field(
+        0.02, ge=0, description="A step is reverted when its rerun moved an object's init "
+                                "reconstruction this much more than its observed points "
+                                "moved (a fit that flipped; r2s/diagnose/measure/"
+                                "reconstruction_jumps.py), m; 0: off.")
     camera_prior_odds: float = Field(
         4.0, gt=0, description="Prior odds of a camera extrinsic error against a tilted table "
                                "when the table is a few degrees off the declared vertical "
@@ -208,7 +213,7 @@ def loop_config(options: Options) -> LoopConfig:
         rerun=options.rerun, rerun_stages=options.rerun_stages or None,
         structure_alpha=options.structure_alpha, colour_z=options.colour_z,
         edge_shift_px=options.edge_shift_px,
-        joint_refit=options.joint_refit,
+        joint_refit=options.joint_refit, jump_tolerance_m=options.jump_tolerance_m,
         lookahead=options.lookahead)
 
 
