@@ -186,3 +186,30 @@ def test_a_checkered_ball_beside_a_grey_box_of_its_mean_colour_is_not_merged():
     assert ev.continuous_fraction == 1.0 and ev.colour_distance < MAX_COLOUR_DISTANCE
     assert ev.colour_set_distance == pytest.approx(np.sqrt(3) * 115, abs=1.0)
     assert fragment_parents(masks, _plane_depth(), rgb) == {}
+
+
+def test_a_sliver_of_edge_colours_joins_but_not_one_of_another_colour():
+    """A 3 x 30 px strip (id 9) of a red box (id 4) along a nearer object's edge reads the
+    edge's mixed colours, 30 RGB units off the box's (above the ordinary 8-unit match,
+    means 30 apart: the means rule's 40 would take it as well, so the strip's mean is
+    pushed away by a few pixels of the occluder's blue): a sliver, joined. The same strip
+    in green (set distance > 40) is not."""
+    masks = np.zeros((H, W), np.int32)
+    masks[20:60, 20:70] = 4
+    masks[30:60, 70:73] = 9
+    masks[20:60, 73:100] = 5  # the occluder, 40 mm nearer
+    depth = _plane_depth()
+    depth[:, 73:] -= 0.04
+    rgb = np.full((H, W, 3), 128, np.uint8)
+    rgb[20:60, 20:70] = (200, 40, 40)
+    rgb[20:60, 73:100] = (40, 40, 200)
+    rgb[30:60, 70:73] = (180, 60, 60)       # 35 off the box: the edge's mix
+    rgb[30:40, 70:73] = (40, 40, 200)       # and a little of the occluder's blue
+    ev = [e for e in boundary_evidence(masks, depth, rgb) if {e.small_id, e.large_id} == {4, 9}]
+    assert len(ev) == 1 and ev[0].is_sliver()
+    assert ev[0].colour_set_distance > MAX_COLOUR_SET_DISTANCE
+    assert ev[0].colour_distance > MAX_COLOUR_DISTANCE
+    parents = fragment_parents(masks, depth, rgb)
+    assert list(parents) == [9] and parents[9][0] == 4
+    rgb[30:60, 70:73] = (40, 200, 40)
+    assert fragment_parents(masks, depth, rgb) == {}
