@@ -39,6 +39,7 @@ from typing import Iterable, Optional
 import numpy as np
 from scipy import ndimage
 
+from r2s.geometry.colour_sets import nearest_colour_distances
 from r2s.geometry.occluded_fragments import occluded_parents
 
 JUMP_MIN_M = 0.006
@@ -214,11 +215,8 @@ def _colour_set_distance(a: np.ndarray, b: np.ndarray) -> float:
     """``COLOUR_SET_PERCENTILE`` percentile of the distances from each of (N, 3) colours
     ``a`` to the nearest of (M, 3) ``b`` and back; each side thinned to at most
     ``COLOUR_SET_SAMPLES`` (every k-th)."""
-    a = a[::max(1, -(-len(a) // COLOUR_SET_SAMPLES))]
-    b = b[::max(1, -(-len(b) // COLOUR_SET_SAMPLES))]
-    d_ab = np.sqrt(((a[:, None, :] - b[None, :, :]) ** 2).sum(axis=2))
-    return float(np.percentile(np.concatenate([d_ab.min(axis=1), d_ab.min(axis=0)]),
-                               COLOUR_SET_PERCENTILE))
+    a_to_b, b_to_a = nearest_colour_distances(a, b, COLOUR_SET_SAMPLES)
+    return float(np.percentile(np.concatenate([a_to_b, b_to_a]), COLOUR_SET_PERCENTILE))
 
 
 def _strip(own: np.ndarray, dist_to_other: np.ndarray, skip_px: int, strip_px: int

@@ -34,6 +34,8 @@ from typing import Iterable, Optional
 import numpy as np
 from scipy import ndimage
 
+from r2s.geometry.colour_sets import nearest_colour_distances
+
 MAX_AREA_SHARE = 0.35
 """A piece seen past an occluder is small beside its object (a segmenter's sliver)."""
 MAX_GAP_PX = 80.0
@@ -78,14 +80,13 @@ class Bridge:
                 f"the space between; colours {self.colour_distance:.0f} apart")
 
 
-def _end_depth(own: np.ndarray, depth: np.ndarray, at: tuple[int, int],
-               fallback: bool = True) -> float:
-    """The median reading of ``own``'s pixels within ``END_WINDOW_PX`` of ``at``; with
-    ``fallback``, of all of them when none of those reads (NaN when nothing reads)."""
+def _end_depth(own: np.ndarray, depth: np.ndarray, at: tuple[int, int]) -> float:
+    """The median reading of ``own``'s pixels within ``END_WINDOW_PX`` of ``at``, else of
+    all of them when none of those reads (NaN when nothing reads)."""
     win = _window(own.shape, at)
     z = depth[win][own[win]]
     z = z[np.isfinite(z) & (z > 0)]
-    if not len(z) and fallback:
+    if not len(z):
         z = depth[own]
         z = z[np.isfinite(z) & (z > 0)]
     return float(np.median(z)) if len(z) else float("nan")
@@ -113,13 +114,13 @@ def _ray(K: np.ndarray, at: tuple[int, int], z: float) -> np.ndarray:
 
 
 def _colour_distance(small: np.ndarray, large: np.ndarray, rgb: np.ndarray) -> float:
+    """``COLOUR_PERCENTILE`` percentile of the distances from each colour of ``small``
+    (its outline band left out, unless that leaves fewer than 8 pixels) to the nearest
+    colour of ``large`` (both (H, W) bool)."""
     inner = ndimage.binary_erosion(small, iterations=BAND_PX, border_value=0)
-    a = rgb[inner if int(inner.sum()) >= 8 else small].astype(np.float64)
-    b = rgb[large].astype(np.float64)
-    a = a[::max(1, -(-len(a) // COLOUR_SAMPLES))]
-    b = b[::max(1, -(-len(b) // COLOUR_SAMPLES))]
-    d = np.sqrt(((a[:, None, :] - b[None, :, :]) ** 2).sum(axis=2)).min(axis=1)
-    return float(np.percentile(d, COLOUR_PERCENTILE))
+    to_large, _ = nearest_colour_distances(rgb[inner if int(inner.sum()) >= 8 else small],
+                                           rgb[large], COLOUR_SAMPLES)
+    return float(np.percentile(to_large, COLOUR_PERCENTILE))
 
 
 def bridge(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray, K: np.ndarray,
@@ -184,23 +185,21 @@ def bridge(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray, K: np.ndarra
 
 
 def occluded_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray, K: np.ndarray,
-                     protected_ids: Iterable[int] = (), skip_ids: Iterable[int] = ()
-                     ) -> dict[int, tuple[int, str]]:
+                     protected_ids: Iterable[int] = ()) -> dict[int, tuple[int, str]]:
     """``{piece id: (the id of the whole object it is part of, why)}`` for the pieces of
     the module docstring. ``protected_ids`` (ids with a shape prior: whole objects) are never
-    pieces; ``skip_ids`` (ids already joined to another) are neither pieces nor parents."""
+    pieces. Ids are tried smallest first, each against every id at least 1 /
+    ``MAX_AREA_SHARE`` times its size (so none of those is a piece yet)."""
     masks = np.asarray(masks)
     protected = {int(i) for i in protected_ids}
-    skip = {int(i) for i in skip_ids}
-    ids = [int(i) for i in np.unique(masks) if i > 0 and int(i) not in skip]
+    ids = [int(i) for i in np.unique(masks) if i > 0]
     sizes = {i: int((masks == i).sum()) for i in ids}
     out: dict[int, tuple[int, str]] = {}
     for small in sorted(ids, key=sizes.get):
         if small in protected:
             continue
         found = [bridge(masks, depth_m, rgb, K, small, large) for large in ids
-                 if large != small and large not in out
-                 and sizes[small] <= MAX_AREA_SHARE * sizes[large]]
+                 if sizes[small] <= MAX_AREA_SHARE * sizes[large]]
         found = [f for f in found if f is not None]
         if found:
             best = min(found, key=lambda f: f.gap_m)

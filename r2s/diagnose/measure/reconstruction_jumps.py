@@ -30,9 +30,9 @@ from pathlib import Path
 from typing import Optional
 
 import numpy as np
-import trimesh
 
 from r2s.geometry.plane import signed_distance
+from r2s.io.mesh_io import load_mesh
 from r2s.io.state import ObjectState, read_state
 
 JUMP_TOLERANCE_M = 0.02
@@ -71,7 +71,7 @@ class Jump:
 def _centroids(stage_dir: Path, o: ObjectState, plane: tuple[np.ndarray, np.ndarray]
                ) -> Optional[tuple[np.ndarray, np.ndarray, float]]:
     """(mesh centroid, observed points' centroid, world frame; the mesh's lowest signed
-    distance from ``plane`` (point, unit normal)); None when mesh or points are missing."""
+    distance from ``plane`` (point, normal)); None when mesh or points are missing."""
     points = getattr(o, "observed_points", None)
     if not points or not (stage_dir / points).is_file() or not (stage_dir / o.mesh).is_file():
         return None
@@ -79,7 +79,7 @@ def _centroids(stage_dir: Path, o: ObjectState, plane: tuple[np.ndarray, np.ndar
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     if not len(pts):
         return None
-    mesh = trimesh.load(stage_dir / o.mesh, force="mesh")
+    mesh = load_mesh(stage_dir / o.mesh)
     verts = np.asarray(mesh.vertices, dtype=np.float64) @ o.pose[:3, :3].T + o.pose[:3, 3]
     return verts.mean(axis=0), pts.mean(axis=0), float(signed_distance(verts, *plane).min())
 
@@ -89,9 +89,8 @@ def reconstruction_jumps(before_stage_dir: Path, after_stage_dir: Path,
     """Objects of both stage directories (``<scene>/init``) whose reconstruction moved more
     than ``tolerance_m`` beyond their observed points (module docstring), largest first."""
     before, after = read_state(Path(before_stage_dir)), read_state(Path(after_stage_dir))
-    planes = [(np.asarray(st.support.point, dtype=np.float64),
-               np.asarray(st.support.normal, dtype=np.float64)
-               / np.linalg.norm(st.support.normal)) for st in (before, after)]
+    planes = [(np.asarray(st.support.point), np.asarray(st.support.normal))
+              for st in (before, after)]
     found = []
     for o in after.objects:
         try:
