@@ -208,6 +208,7 @@ def run(ctx: StageContext) -> dict:
     atomic_write_json(ctx.out_dir / GEOMOPT_LOSS_FILE, {
         "iterations": result.iterations, "converged": result.converged,
         "best_iteration": result.best_iteration,  # timing lives in the manifest only
+        "kept_initial": result.kept_initial,
         "terms": result.history, "before": _mm(result.before), "after": _mm(result.after),
         "objects": per_object, "source_stage": source,
         "free_space": None if result.free_space_before is None else {
@@ -225,6 +226,7 @@ def run(ctx: StageContext) -> dict:
         "max_translation_mm": round(float(shift_mm.max()), 3),
         "max_rotation_deg": round(float(rot_deg.max()), 3),
         "iterations": result.iterations, "converged": result.converged,
+        "kept_initial": result.kept_initial,
         "sdf_seconds": round(t_sdf, 2), "sdf_reused": reused,
         "optimise_seconds": round(result.seconds, 2),
     }

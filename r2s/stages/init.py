@@ -68,6 +68,7 @@ from r2s.geometry.mask_edges import foreign_rim_pixels
 from r2s.geometry.mask_holes import fill_mask_holes
 from r2s.geometry.point_cleanup import object_point_mask, part_labels
 from r2s.geometry.silhouette_completion import complete_from_silhouette
+from r2s.geometry.silhouette_snap import snap_outline
 from r2s.geometry.overlay import fit_overlay, render_instances
 from r2s.geometry.prior_choice import (ChoiceMargins, Rest, choose, score_in_view,
                                        stands_alone_on_table)
@@ -234,6 +235,13 @@ class Options(StageOptions):
     completion_carve: bool = Field(
         True, description="Carve a completed object against the depth image: no material "
                           "where the camera saw past it (see geometry/carving.py).")
+    completion_snap_outline_px: float = Field(
+        2.0, ge=0, description="After completing, move the shape's outer silhouette, in the "
+                               "support plane, onto its mask's sub-pixel outline by at most "
+                               "this many pixels per pass (3 passes), where the outline meets "
+                               "background and the camera did not see past the new surface; "
+                               "0 = off, the default before 2026-11-28 (see "
+                               "geometry/silhouette_snap.py, docs/completion.md).")
     completion_carve_band_px: int = Field(
         1, ge=0, description="Carving spares the mask's uncertain rim: this many pixels "
                              "outside the object's kept pixels, where mixed readings and "
@@ -664,6 +672,50 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
     return shape.mesh, shape.world_from_object
 
 
+def _final_shapes(ctx: StageContext, scene: InputScene, observed: dict,
+                  shapes: dict[int, tuple], plane: PlaneFit, o: Options) -> dict:
+    """In place in ``shapes``, the last changes once every object has its shape: hidden
+    space shared by completed objects, hidden overlaps of priors (their records are
+    returned, by id), then the completed outlines snapped onto the masks."""
+    if o.completion_partition_hidden:
+        ctx.progress("hidden space shared by completed objects", 0.9)
+        _partition_hidden(scene, observed, shapes, plane, o)
+    yielded = {}
+    if o.prior_yield_hidden_overlap or o.prior_lift_below_table:  # only where priors overlap
+        ctx.progress("hidden overlaps of priors", 0.92)
+        yielded = _yield_prior_overlaps(observed, shapes, plane, o)
+    if o.completion_snap_outline_px > 0:
+        ctx.progress("outlines of completed objects", 0.93)
+        _snap_completions(scene, shapes, plane, o.completion_snap_outline_px)
+    return yielded
+
+
+def _snap_completions(scene: InputScene, shapes: dict[int, tuple], plane: PlaneFit,
+                      max_shift_px: float) -> None:
+    """In place in ``shapes``: every completed object's mesh with its outer silhouette
+    moved onto its mask's outline (:func:`r2s.geometry.silhouette_snap.snap_outline`),
+    keeping out of every other object (in their final shapes as they are snapped). The
+    last step before saving, so that no decision above (the partition of hidden space,
+    resting on others, the prior-or-completion choice) depends on it."""
+    cam = scene.camera
+    posed = {}
+    for obj_id, (mesh, world_from_object, _) in shapes.items():
+        if mesh is not None:
+            posed[obj_id] = trimesh.Trimesh(transform_points(world_from_object, mesh.vertices),
+                                            mesh.faces, process=False)
+    for obj_id, (mesh, world_from_object, reg) in shapes.items():
+        if reg is not None or mesh is None:
+            continue
+        snapped, _ = snap_outline(posed[obj_id], scene.masks == obj_id, scene.masks,
+                                  scene.depth_m, cam.K, cam.world_from_camera, plane.normal,
+                                  max_shift_px=max_shift_px,
+                                  others=[m for j, m in posed.items() if j != obj_id])
+        posed[obj_id] = snapped  # the objects after it keep out of its new surface
+        out = mesh.copy()  # keeps the vertex colours: the same vertices, moved
+        out.vertices = transform_points(np.linalg.inv(world_from_object), snapped.vertices)
+        shapes[obj_id] = (out, world_from_object, None)
+
+
 def _save_object(spec: ObjectSpec, shape: tuple, pts: np.ndarray, out: Path, o: Options,
                  table_extent_m: float, extra: Optional[dict] = None
                  ) -> tuple[ObjectState, trimesh.Trimesh, float, list[str]]:
@@ -896,13 +948,7 @@ def run(ctx: StageContext) -> dict:
     ctx.progress("prior or completion", 0.85)
     choices, alternates = _choose_prior_or_completion(scene, observed, shapes, plane, o, flags)
     _save_alternates(out, alternates, scene, plane)
-    if o.completion_partition_hidden:
-        ctx.progress("hidden space shared by completed objects", 0.9)
-        _partition_hidden(scene, observed, shapes, plane, o)
-    yielded = {}
-    if o.prior_yield_hidden_overlap or o.prior_lift_below_table:  # only where priors overlap
-        ctx.progress("hidden overlaps of priors", 0.92)
-        yielded = _yield_prior_overlaps(observed, shapes, plane, o)
+    yielded = _final_shapes(ctx, scene, observed, shapes, plane, o)
     objects: list[ObjectState] = []
     posed: list[trimesh.Trimesh] = []
     rmses: list[float] = []
