@@ -90,12 +90,15 @@ def test_a_box_two_mm_too_wide_comes_back_to_its_outline():
         assert np.abs(after_v[inner, axis] - true).max() < 1.5e-3
 
 
-def test_a_box_two_mm_too_narrow_grows_where_the_camera_read_nothing():
+def _too_narrow():
+    """The camera, the true box's mask, depth and labels, and the box 2 mm too narrow."""
     wfc = _camera()
-    truth = _box(EXTENTS)
-    mask, _ = _render(truth, wfc)
-    labels = mask.astype(np.int64)
-    narrow = _grown(EXTENTS, -0.002)
+    mask, depth = _render(_box(EXTENTS), wfc)
+    return wfc, mask, depth, mask.astype(np.int64), _grown(EXTENTS, -0.002)
+
+
+def test_a_box_two_mm_too_narrow_grows_where_the_camera_read_nothing():
+    wfc, mask, _, labels, narrow = _too_narrow()
     no_depth = np.full((H, W), np.nan)
     snapped, _ = snap_outline(narrow, mask, labels, no_depth, K, wfc, UP)
     before = _iou(_render(narrow, wfc)[0], mask)
@@ -105,11 +108,7 @@ def test_a_box_two_mm_too_narrow_grows_where_the_camera_read_nothing():
 
 
 def test_no_growth_where_the_camera_saw_past_the_new_surface():
-    wfc = _camera()
-    truth = _box(EXTENTS)
-    mask, depth = _render(truth, wfc)
-    labels = mask.astype(np.int64)
-    narrow = _grown(EXTENTS, -0.002)
+    wfc, mask, depth, labels, narrow = _too_narrow()
     # the mask's outer 3 px and everything around it read a wall 1.5 m away (mask bleed
     # onto a background seen far behind the object)
     seen_past = depth.copy()
@@ -139,11 +138,7 @@ def test_no_move_into_another_object():
     standing right against its true side: given the neighbour, the grown side stops short
     of it (no vertex beside it inside it or within 0.5 mm of it; above its 50 mm top the
     side grows on), the other sides still grow."""
-    wfc = _camera()
-    truth = _box(EXTENTS)
-    mask, _ = _render(truth, wfc)
-    labels = mask.astype(np.int64)
-    narrow = _grown(EXTENTS, -0.002)
+    wfc, mask, _, labels, narrow = _too_narrow()
     neighbour = trimesh.creation.box(extents=[0.04, 0.10, 0.05])
     neighbour.apply_translation([EXTENTS[0] / 2 + 0.02, 0.0, 0.025])  # touches x = +50 mm
     no_depth = np.full((H, W), np.nan)
