@@ -178,7 +178,10 @@ def test_init_gives_the_hidden_overlap_of_two_priors_to_one(tmp_path):
     assert before > 0.002 and records == {1: None, 2: None}
     after, records = _init_overlap_m(scene)
     assert after < MIN_DEPTH_M
-    yielded = [i for i, r in records.items() if r is not None]
+    # a record may also count vertices lifted from below the table (the default
+    # prior_lift_below_table; one vertex of a ball's prior, depending on the numerics of
+    # its registration): only the prior that yields has "yielded_to"
+    yielded = [i for i, r in records.items() if r is not None and "yielded_to" in r]
     assert len(yielded) == 1
     r = records[yielded[0]]
     assert r["yielded_to"] == [3 - yielded[0]] and r["moved_vertices"] > 0
