@@ -157,6 +157,12 @@ def first_hit_distance(scene, origins: np.ndarray, directions: np.ndarray) -> np
     return scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
 
 
+def signed_distances(scene, points: np.ndarray) -> np.ndarray:
+    """(M,) signed distance (m) from (M, 3) points to the scene's triangles, negative
+    inside (closed meshes), as float64."""
+    return scene.compute_signed_distance(_o3d_points(points)).numpy().astype(np.float64)
+
+
 def _o3d_points(points: np.ndarray):
     import open3d as o3d
 

@@ -40,8 +40,9 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from r2s.geometry.camera import camera_center, project
+from r2s.geometry.plane import world_from_plane
 from r2s.geometry.raycast import raycast_view
-from r2s.geometry.sdf import raycasting_scene
+from r2s.geometry.sdf import raycasting_scene, signed_distances
 
 CONTOUR_PX = 1.0
 """A contour-generator vertex projected within this distance (pixels) of the rendered
@@ -89,17 +90,13 @@ def mask_signed_distance_px(mask: np.ndarray) -> np.ndarray:
 
 
 def _bilinear(image: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Bilinear samples of an (H, W) or (H, W, C) image at (N, 2) ``(u, v)``."""
-    h, w = image.shape[:2]
-    u = np.clip(uv[:, 0], 0.0, w - 1.0)
-    v = np.clip(uv[:, 1], 0.0, h - 1.0)
-    u0 = np.minimum(np.floor(u).astype(np.int64), w - 2)
-    v0 = np.minimum(np.floor(v).astype(np.int64), h - 2)
-    du, dv = u - u0, v - v0
-    if image.ndim == 3:
-        du, dv = du[:, None], dv[:, None]
-    return ((1 - du) * (1 - dv) * image[v0, u0] + du * (1 - dv) * image[v0, u0 + 1]
-            + (1 - du) * dv * image[v0 + 1, u0] + du * dv * image[v0 + 1, u0 + 1])
+    """Bilinear samples of an (H, W) or (H, W, C) image at (N, 2) ``(u, v)``, clamped to
+    the image."""
+    at = [uv[:, 1], uv[:, 0]]
+    if image.ndim == 2:
+        return ndimage.map_coordinates(image, at, order=1, mode="nearest")
+    return np.stack([ndimage.map_coordinates(image[..., c], at, order=1, mode="nearest")
+                     for c in range(image.shape[2])], axis=1)
 
 
 def contour_generator_vertices(mesh: trimesh.Trimesh, eye: np.ndarray) -> np.ndarray:
@@ -130,15 +127,6 @@ def _projection_jacobian(points: np.ndarray, K: np.ndarray, world_from_camera: n
     jc[:, 1, 1] = fy / z
     jc[:, 1, 2] = -fy * y / z ** 2
     return jc @ rot
-
-
-def _horizontal_basis(up: np.ndarray) -> np.ndarray:
-    """(3, 2) two orthonormal directions normal to ``up``."""
-    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
-    a = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(up, a)
-    e1 /= np.linalg.norm(e1)
-    return np.stack([e1, np.cross(up, e1)], axis=1)
 
 
 @dataclass(frozen=True)
@@ -211,7 +199,7 @@ def snap_outline(mesh_world: trimesh.Trimesh, mask: np.ndarray, labels: np.ndarr
     if window is None:
         return trimesh.Trimesh(verts, faces, process=False), SnapReport(0, 0.0, 0, 0)
     image = _outline(mask, labels, depth_m, K, window, border_px)
-    basis = _horizontal_basis(up)
+    basis = world_from_plane(np.zeros(3), up)[:3, :2]  # (3, 2) across ``up``
     blocker = _union_scene(others)
     other_points = (np.concatenate([np.asarray(m.vertices, dtype=np.float64) for m in others])
                     if len(others) else np.zeros((0, 3)))
@@ -310,29 +298,18 @@ def _union_scene(meshes: Sequence[trimesh.Trimesh]):
     meshes = [m for m in meshes if len(m.faces)]
     if not meshes:
         return None
-    verts, faces, base = [], [], 0
-    for m in meshes:
-        verts.append(np.asarray(m.vertices, dtype=np.float64))
-        faces.append(np.asarray(m.faces) + base)
-        base += len(m.vertices)
-    return raycasting_scene(np.concatenate(verts), np.concatenate(faces))
+    union = trimesh.util.concatenate(meshes)
+    return raycasting_scene(np.asarray(union.vertices), np.asarray(union.faces))
 
 
 def _kept_out(blocker, verts: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, int]:
     """``delta`` (V, 3) with the moves undone that take a vertex into another object, or
     to within ``KEEP_OUT_M`` of its surface, from farther out; and how many were undone."""
-    import open3d as o3d  # heavy import, only where needed
-
     idx = np.nonzero(np.linalg.norm(delta, axis=1) > 1e-9)[0]
     if len(idx) == 0:
         return delta, 0
-
-    def signed(points: np.ndarray) -> np.ndarray:
-        query = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
-        return blocker.compute_signed_distance(query).numpy().astype(np.float64)
-
-    before = signed(verts[idx])
-    after = signed(verts[idx] + delta[idx])
+    before = signed_distances(blocker, verts[idx])
+    after = signed_distances(blocker, verts[idx] + delta[idx])
     bad = idx[(after < KEEP_OUT_M) & (after < before)]
     delta = delta.copy()
     delta[bad] = 0.0
@@ -345,8 +322,6 @@ def _kept_clear(verts: np.ndarray, faces: np.ndarray, delta: np.ndarray,
     of another object (M, 3) would come inside the moved mesh or within ``KEEP_OUT_M`` of
     its surface from farther out (a face moved past another object's vertices while this
     mesh's own vertices stay outside it); and how many moves were undone."""
-    import open3d as o3d  # heavy import, only where needed
-
     moving = np.nonzero(np.linalg.norm(delta, axis=1) > 1e-9)[0]
     if len(moving) == 0 or len(other_points) == 0:
         return delta, 0
@@ -354,9 +329,8 @@ def _kept_clear(verts: np.ndarray, faces: np.ndarray, delta: np.ndarray,
     pts = other_points[np.isfinite(near)]
     if len(pts) == 0:
         return delta, 0
-    query = o3d.core.Tensor(np.ascontiguousarray(pts, dtype=np.float32))
-    before = raycasting_scene(verts, faces).compute_signed_distance(query).numpy()
-    after = raycasting_scene(verts + delta, faces).compute_signed_distance(query).numpy()
+    before = signed_distances(raycasting_scene(verts, faces), pts)
+    after = signed_distances(raycasting_scene(verts + delta, faces), pts)
     hit = pts[(after < KEEP_OUT_M) & (after < before)]
     if len(hit) == 0:
         return delta, 0
