@@ -150,3 +150,37 @@ def test_no_move_into_another_object():
     assert kept.vertices[right, 0].max() < EXTENTS[0] / 2 - 4e-4
     front = narrow.vertices[:, 1] < -EXTENTS[1] / 2 + 0.003
     assert kept.vertices[front, 1].min() < narrow.vertices[front, 1].min() - 1e-3
+
+
+def test_the_base_resting_on_another_object_stays_where_it_rests():
+    """A bar lying across a narrower block, completed 2 mm too wide all round: its outline
+    comes in (also along the overhanging ends of its base), but the base vertices that rest
+    on the block (the block within 3 mm below them) do not move, so what carries the bar is
+    unchanged. The block's pixels count as background here, so nothing else stops them."""
+    wfc = _camera()
+    block = trimesh.creation.box(extents=[0.06, 0.06, 0.05])
+    block.apply_translation([0.0, 0.0, 0.025])
+    bar_extents = np.array([0.16, 0.03, 0.02])
+    bar = _box(bar_extents)
+    bar.apply_translation([0.0, 0.0, 0.05])
+    table = trimesh.creation.box(extents=[1.0, 1.0, 0.01])
+    table.apply_translation([0.0, 0.0, -0.005])
+    _, index, _ = raycast_view([bar, block, table], K, wfc, W, H)
+    mask = index == 0
+    labels = mask.astype(np.int64)
+    wide = _grown(bar_extents, 0.002)
+    wide.apply_translation([0.0, 0.0, 0.05])
+    no_depth = np.full((H, W), np.nan)
+    v = wide.vertices
+    on_block = (v[:, 2] < 0.0505) & (np.abs(v[:, 0]) < 0.029)
+    overhang = (v[:, 2] < 0.0505) & (np.abs(v[:, 0]) > 0.04)
+    free, _ = snap_outline(wide, mask, labels, no_depth, K, wfc, UP)
+    kept, report = snap_outline(wide, mask, labels, no_depth, K, wfc, UP, others=[block])
+    moved_free = np.linalg.norm(free.vertices - v, axis=1)
+    moved_kept = np.linalg.norm(kept.vertices - v, axis=1)
+    assert moved_free[on_block].max() > 5e-4  # without the block the base comes in too
+    assert report.pinned >= on_block.sum()
+    np.testing.assert_array_equal(kept.vertices[on_block], v[on_block])
+    assert moved_kept[overhang].max() > 5e-4  # the overhanging base still comes in
+    top = v[:, 2] > 0.069
+    assert moved_kept[top].max() > 5e-4

@@ -21,7 +21,9 @@ so the surface stays smooth. It is refused where the outline is not the object's
 - into another object (``others``), or to within ``KEEP_OUT_M`` of it from farther out,
   whether a vertex of this mesh would enter it or a face would pass one of its vertices:
   overlaps would make geomopt and physopt push the objects apart, away from where they
-  were seen.
+  were seen;
+- where the shape rests on another object (within ``CONTACT_M`` above it at the start):
+  its base there carries it, which the snap must not change.
 
 Each move is at most ``max_shift_px`` per iteration.
 
@@ -57,6 +59,11 @@ KEEP_OUT_M = 5e-4
 unless it was already closer: the snap never makes objects overlap, which geomopt and
 physopt would then push apart, moving them away from where they were seen."""
 
+CONTACT_M = 3e-3
+"""A vertex with another object within this distance below it (metres, along ``up``) at
+the start does not move: that is where the object rests on the other, and moving it would
+change what carries it (a shape lying across two others loses part of its base)."""
+
 
 @dataclass(frozen=True)
 class SnapReport:
@@ -68,6 +75,7 @@ class SnapReport:
     refused_seen_past : outward moves refused because the camera saw past the vertex.
     refused_overlap : vertex moves undone because they went into another object (or within
         ``KEEP_OUT_M`` of it) from farther out.
+    pinned : vertices held where the shape rests on another object (``CONTACT_M``).
     """
 
     vertices_moved: int
@@ -75,6 +83,7 @@ class SnapReport:
     refused_other: int
     refused_seen_past: int
     refused_overlap: int = 0
+    pinned: int = 0
 
 
 def mask_signed_distance_px(mask: np.ndarray) -> np.ndarray:
@@ -186,7 +195,8 @@ def snap_outline(mesh_world: trimesh.Trimesh, mask: np.ndarray, labels: np.ndarr
     up : (3,) the support plane's normal, world frame; every move is normal to it.
     max_shift_px, iterations, sigma_m, seen_past_m, border_px : see the module docstring.
     others : the other objects' closed meshes, world frame: no vertex moves into one, nor
-        to within ``KEEP_OUT_M`` of it from farther out.
+        to within ``KEEP_OUT_M`` of it from farther out, and the vertices that start within
+        ``CONTACT_M`` above one do not move.
 
     Returns
     -------
@@ -203,6 +213,8 @@ def snap_outline(mesh_world: trimesh.Trimesh, mask: np.ndarray, labels: np.ndarr
     blocker = _union_scene(others)
     other_points = (np.concatenate([np.asarray(m.vertices, dtype=np.float64) for m in others])
                     if len(others) else np.zeros((0, 3)))
+    pinned = (signed_distances(blocker, verts - CONTACT_M * np.asarray(up, float)) < 0.0
+              if blocker is not None else np.zeros(len(verts), dtype=bool))
     moved: set[int] = set()
     shifts: list[float] = []
     refused = np.zeros(3, dtype=np.int64)
@@ -218,18 +230,19 @@ def snap_outline(mesh_world: trimesh.Trimesh, mask: np.ndarray, labels: np.ndarr
         move = _horizontal_moves(verts[cand], g * shift[:, None], image.K, world_from_camera,
                                  basis)
         delta = _spread(verts, verts[cand], move, sigma_m)
+        delta[pinned] = 0.0
         if blocker is not None:
             delta, undone = _kept_out(blocker, verts, delta)
             refused[2] += undone
             delta, undone = _kept_clear(verts, faces, delta, other_points, 3.0 * sigma_m)
             refused[2] += undone
         verts += delta
-        moved.update(int(i) for i in cand)
+        moved.update(int(i) for i in cand if not pinned[i])
         shifts.extend(np.abs(shift).tolist())
     report = SnapReport(vertices_moved=len(moved),
                         mean_shift_px=float(np.mean(shifts)) if shifts else 0.0,
                         refused_other=int(refused[0]), refused_seen_past=int(refused[1]),
-                        refused_overlap=int(refused[2]))
+                        refused_overlap=int(refused[2]), pinned=int(pinned.sum()))
     return trimesh.Trimesh(verts, faces, process=False), report
 
 

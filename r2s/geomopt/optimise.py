@@ -61,6 +61,18 @@ IMPROVED_LOSS_SHARE = 0.1
 penetration or gap (many overlaps resolved while the deepest stays: 18 mm overlapping
 priors of a held-out scene, 99 % of the loss)."""
 
+SMALL_PENETRATION_M = 3e-3
+"""A worst penetration (pairs or table) no deeper than this (metres; 1.5 cells of the
+completion grid, whose surfaces are right to about a cell each) ..."""
+
+SMALL_GAP_M = 1e-3
+"""... with a worst support gap no wider than this (metres; half of evaluate's floating
+gap) is within what the reconstruction can tell: init's poses are kept unless the
+optimisation leaves less in space seen empty. physopt cuts the collision pieces where
+they overlap, while the 1-2 mm moves the optimisation makes for such overlaps cost the
+view (docs/observation.md: 0.004-0.04 of pooled silhouette IoU in each realistic scene
+measured)."""
+
 TABLE = -1
 """Parent index of an object supported by the support plane."""
 
@@ -574,17 +586,22 @@ def _result(problem: GeomProblem, params: GeomParams, tr: np.ndarray, om: np.nda
 def _improved(before: dict[str, float], after: dict[str, float],
               fs_before: list[float] | None, fs_after: list[float] | None,
               loss_gain: float) -> bool:
-    """Whether the optimised state is better than the initial one: it removed at least
-    ``IMPROVED_LOSS_SHARE`` of the loss, or its worst penetration or support gap is
-    smaller by more than ``IMPROVED_M``, or it leaves less of the objects in space the
-    camera saw empty. A slightly lower loss alone is not enough: on a held-out scene the
+    """Whether the optimised state is better than the initial one: where init's worst
+    penetration is deeper than ``SMALL_PENETRATION_M`` or its worst support gap wider
+    than ``SMALL_GAP_M``, it removed at least
+    ``IMPROVED_LOSS_SHARE`` of the loss or its worst penetration or gap is smaller by
+    more than ``IMPROVED_M``; or it leaves less of the objects in space the camera saw
+    empty. A slightly lower loss alone is not enough: on a held-out scene the
     optimiser traded penetration for contact, moved all eight objects by about 2 mm for
     0.7 % of the loss, and the worst gap grew from 0 to 2.1 mm (docs/observation.md)."""
     def worst(state: dict[str, float]) -> float:
         return max(state["max_penetration_pairs_m"], state["max_penetration_table_m"],
                    state["max_support_gap_m"])
 
-    if loss_gain >= IMPROVED_LOSS_SHARE or worst(after) < worst(before) - IMPROVED_M:
+    small = (max(before["max_penetration_pairs_m"], before["max_penetration_table_m"])
+             <= SMALL_PENETRATION_M and before["max_support_gap_m"] <= SMALL_GAP_M)
+    if not small and (loss_gain >= IMPROVED_LOSS_SHARE
+                      or worst(after) < worst(before) - IMPROVED_M):
         return True
     return fs_before is not None and fs_after is not None and (
         sum(fs_after) < sum(fs_before) - 1e-6)

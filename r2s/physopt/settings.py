@@ -71,6 +71,11 @@ class RepairSettings(BaseModel):
                                "lowest point, projected down to it (r2s/physopt/"
                                "contact_foot.py; the visual mesh is untouched; 0: off, the "
                                "default: measured, no gain; docs/physopt.md).")
+    pull_back: bool = Field(
+        True, description="Once the repaired scene rests, put the poses the solve changed "
+                          "after depenetration back towards its start (all, all but what "
+                          "then moves, halfway), keeping the first that still rests "
+                          "(r2s/physopt/pull_back.py); COM, mass and friction stay tuned.")
     fallback_severity: float = Field(
         0.5, gt=0, description="The unbounded repairs run when an object's check drift is at "
                                "least this fraction of the judge's criterion after the "

@@ -18,6 +18,7 @@ from r2s.physopt.contact_foot import with_foot
 from r2s.physopt.object_opt import optimise_objects
 from r2s.physopt.observation_bound import ObservationBound, displacement_flags
 from r2s.physopt.params import Drift, Params
+from r2s.physopt.pull_back import pull_back
 from r2s.physopt.repair import (check, depenetrate_scene, judge_orders, verify_and_repair,
                                 world_factory)
 from r2s.physical.provenance import com_provenance, friction_provenance
@@ -36,11 +37,14 @@ class Solved:
 def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
                 order: list[int], seen: dict[int, np.ndarray], opt, log: dict,
                 progress: ProgressFn) -> Solved:
-    """Run the physopt pass; ``opt`` holds the repair, diffsim and observation settings;
+    """Run the physopt pass (its last step puts poses back towards where the solve started,
+    depenetrated, where the scene still rests: :mod:`r2s.physopt.pull_back`); ``opt`` holds
+    the repair, diffsim and observation settings;
     ``log`` (physopt/log.json's record) is extended in place."""
     make_world = world_factory(pieces, state, order, opt)
     progress("depenetration", 0.1)
     params = depenetrate_scene(make_world, params, order, log)
+    start = {i: p.world_from_object for i, p in params.items()}
     if opt.use_diffsim:
         free = [i for i in order if params[i].movable]
         params = optimise_objects(params, meshes, state, free, opt, log, progress)
@@ -52,6 +56,10 @@ def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
     params, drift = repair_bounded_then_free(make_world, params, order,
                                               [o.id for o in state.objects], opt, log,
                                               progress, bound)
+    if opt.pull_back:
+        progress("poses back towards where they were seen", 0.95)
+        params, drift = pull_back(make_world, params, drift, start, centres,
+                                  [o.id for o in state.objects], opt, log)
     flags, _ = displacement_flags(seen, {i: p.world_from_object for i, p in params.items()},
                                   centres, opt.observation_tolerance_m,
                                   opt.observation_tolerance_deg)
