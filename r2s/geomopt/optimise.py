@@ -70,8 +70,8 @@ SMALL_GAP_M = 1e-3
 gap) is within what the reconstruction can tell: init's poses are kept unless the
 optimisation leaves less in space seen empty. physopt cuts the collision pieces where
 they overlap, while the 1-2 mm moves the optimisation makes for such overlaps cost the
-view (docs/observation.md: 0.004-0.04 of pooled silhouette IoU in each realistic scene
-measured)."""
+view (docs/observation.md, "small overlaps are left to physopt": 0.004-0.04 of pooled
+silhouette IoU in each scene measured)."""
 
 TABLE = -1
 """Parent index of an object supported by the support plane."""

@@ -28,7 +28,7 @@ its object frame, the point whose motion counts (as in
 
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Mapping, Optional
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -95,30 +95,18 @@ def pull_back(make_world: MakeWorld, params: Params, drift: Drift,
         return params, drift
     orders = judge_orders(export_order)
 
-    def attempt(name: str, ids: list[int], towards_start: float):
+    def attempt(name: str, ids: list[int], towards_start: float
+                ) -> tuple[list[int], Optional[tuple[Params, Drift]]]:
+        """Check one candidate: (its movers, and the state with its check when it rests,
+        else None); a resting candidate's objects get their log lines."""
         trial = {**params, **{i: params[i].with_pose(interpolated_pose(
             start[i], params[i].world_from_object, centres[i], towards_start)) for i in ids}}
         result = check(make_world, trial, orders, settings.verify_duration_s)
         movers = settings.moving(result)
         record["tried"].append({"candidate": name, "ids": ids, "fraction": towards_start,
                                 "moving": movers})
-        return trial, result, movers
-
-    tries = [("all", moved, attempt("all", moved, 1.0))]
-    kept_out: set[int] = set()
-    for _ in range(MAX_EXCLUSIONS):
-        if not tries[-1][2][2]:
-            break
-        kept_out |= set(tries[-1][2][2])
-        rest = [i for i in moved if i not in kept_out]
-        if not rest or rest == tries[-1][1]:
-            break
-        tries.append(("all but movers", rest, attempt("all but movers", rest, 1.0)))
-    if tries[-1][2][2]:
-        tries.append(("halfway", moved, attempt("halfway", moved, 0.5)))
-    for name, ids, (trial, result, movers) in tries:
         if movers:
-            continue
+            return movers, None
         record["kept"] = name
         for i in ids:
             before = pose_displacement(start[i], params[i].world_from_object, centres[i])
@@ -127,5 +115,20 @@ def pull_back(make_world: MakeWorld, params: Params, drift: Drift,
                 f"pulled back towards its start pose ({name}): "
                 f"{before[0] * 1000:.1f} mm, {before[1]:.1f} deg -> "
                 f"{after[0] * 1000:.1f} mm, {after[1]:.1f} deg")
-        return trial, result
-    return params, drift
+        return movers, (trial, result)
+
+    ids = moved
+    movers, kept = attempt("all", ids, 1.0)
+    left_out: set[int] = set()
+    for _ in range(MAX_EXCLUSIONS):
+        if kept is not None:
+            break
+        left_out |= set(movers)
+        rest = [i for i in moved if i not in left_out]
+        if not rest or rest == ids:
+            break
+        ids = rest
+        movers, kept = attempt("all but movers", ids, 1.0)
+    if kept is None:
+        movers, kept = attempt("halfway", moved, 0.5)
+    return kept if kept is not None else (params, drift)

@@ -57,7 +57,7 @@ def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
                                               [o.id for o in state.objects], opt, log,
                                               progress, bound)
     if opt.pull_back:
-        progress("poses back towards where they were seen", 0.95)
+        progress("poses back towards where the solve started", 0.95)
         params, drift = pull_back(make_world, params, drift, start, centres,
                                   [o.id for o in state.objects], opt, log)
     flags, _ = displacement_flags(seen, {i: p.world_from_object for i, p in params.items()},
