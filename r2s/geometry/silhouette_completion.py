@@ -23,7 +23,10 @@ in the support plane's frame (z up) from three facts and one guess:
    is wide across it (a round or a square object), never beyond its shadow; and its top
    is where the strip's highest mask ray (the one that meets the table farthest) passes
    over that back edge. One view cannot tell a tall object from a deep one; this guess
-   makes the choice a box or a can would.
+   makes the choice a box or a can would. A strip whose rays first meet the support behind
+   the middle of the object (its front plus half its width) shows no front of a base
+   there but a part above the support that overhangs it (a duck's head, a mug's handle):
+   its column starts at the object's front, where the body is.
 
 The result is a plausible body where the image shows the object, not a measurement: init
 gives it ``source="silhouette"`` and a warning line, and its shape should not be trusted
@@ -183,6 +186,12 @@ def _footprint(ground: np.ndarray, eye_xy: np.ndarray, lift: float, cell_m: floa
     far = np.full(n_strips, -np.inf)
     np.minimum.at(near, strips[in_range], s[in_range])
     np.maximum.at(far, strips[in_range], s[in_range])
+    # A strip whose mask rays first meet the support behind the object's middle does not
+    # show the front of its base there: it shows a part that overhangs, above the support
+    # (a duck's head, a mug's handle, an end lying on something). Its column goes where
+    # the body is, from the front of the object, not a whole width behind that point.
+    overhang = np.isfinite(near) & (near > s_front + 0.5 * width)
+    near[overhang] = s_front
     back = np.minimum(near + width, far)  # as deep as wide, within the shadow
     # the ray that meets the support farthest in a strip grazes the top of the object's
     # back: the strip's height is that ray's height above the back edge
