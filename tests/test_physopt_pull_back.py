@@ -40,7 +40,7 @@ def test_interpolated_pose_moves_the_centre_straight_and_turns_on_the_shortest_a
                                              0.01 + 0.01 * np.sin(np.radians(40))), abs=1e-9)
 
 
-def _boxes(start_poses: dict, current_poses: dict):
+def _boxes(start_poses: dict, current_poses: dict, seen_poses: dict | None = None):
     """Two 6 cm cubes on the table (z = 0), 10 cm apart; ``current_poses`` where the
     repairs left them, ``start_poses`` where the solve started."""
     cube = trimesh.creation.box([0.06] * 3)
@@ -57,7 +57,7 @@ def _boxes(start_poses: dict, current_poses: dict):
     log = {"objects": {1: [], 2: []}, "rounds": []}
     centres = {1: np.zeros(3), 2: np.zeros(3)}
     out, out_drift = pull_back(make_world, params, drift, start_poses, centres, [1, 2],
-                               settings, log)
+                               settings, log, seen=seen_poses)
     return params, out, out_drift, log, settings
 
 
@@ -105,3 +105,49 @@ def test_moved_objects_uses_the_thresholds_and_skips_fixed_objects_or_ones_witho
               4: params_at(_pose(0.01, 0, 0.03), movable=False),
               5: params_at(_pose(0.01, 0, 0.03))}          # no start pose
     assert moved_objects(params, start, {i: np.zeros(3) for i in params}) == [2, 3]
+
+
+@pytest.mark.slow
+def test_objects_go_back_to_where_init_saw_them_when_that_rests():
+    # init saw cube 1 at x = -5 mm, turned 8 deg; geomopt and the depenetration started the
+    # solve 6 mm away, the repairs moved it 3 mm more: both poses rest, the seen one is kept
+    seen = {1: _pose(-0.005, 0.0, 0.03, (0, 0, 8)), 2: _pose(0.1, 0.0, 0.03)}
+    start = {1: _pose(0.001, 0.0, 0.03), 2: _pose(0.1, 0.0, 0.03)}
+    current = {1: _pose(0.004, 0.0, 0.03), 2: _pose(0.1, 0.0, 0.03)}
+    params, out, drift, log, settings = _boxes(start, current, seen)
+    assert log["pull_back"]["away_from_seen"] == [1]
+    assert log["pull_back"]["kept"] == "seen"
+    assert np.allclose(out[1].world_from_object, seen[1], atol=1e-9)
+    assert out[2] is params[2]
+    assert settings.moving(drift) == []
+    assert any("towards its seen pose" in line for line in log["objects"][1])
+
+
+@pytest.mark.slow
+def test_a_seen_pose_that_would_not_rest_leaves_the_start_candidates():
+    # seen balanced on an edge, 30 degrees from flat (it falls from there); the solve's
+    # start, flat 4 mm from the repaired pose, rests: "seen" fails, "all" is kept
+    seen = {1: _pose(0.0, 0.0, 0.03 * np.sqrt(2) * np.cos(np.radians(15)) + 0.0005,
+                     (0, 30, 0)), 2: _pose(0.15, 0.0, 0.03)}
+    start = {1: _pose(0.0, 0.0, 0.03), 2: _pose(0.15, 0.0, 0.03)}
+    current = {1: _pose(0.004, 0.0, 0.03), 2: _pose(0.15, 0.0, 0.03)}
+    params, out, drift, log, settings = _boxes(start, current, seen)
+    assert [t["candidate"] for t in log["pull_back"]["tried"]] == ["seen", "all"]
+    assert log["pull_back"]["tried"][0]["moving"] == [1]
+    assert log["pull_back"]["kept"] == "all"
+    assert np.allclose(out[1].world_from_object, start[1], atol=1e-9)
+    assert settings.moving(drift) == []
+
+
+@pytest.mark.slow
+def test_a_seen_pose_inside_the_table_is_left_out_before_any_check():
+    # init saw cube 1 sunk 4 mm into the table; the depenetrated start rests: "seen" is
+    # refused for the overlap (no rollout), then "all" goes back to the start
+    seen = {1: _pose(0.0, 0.0, 0.026), 2: _pose(0.15, 0.0, 0.03)}
+    start = {1: _pose(0.0, 0.0, 0.03), 2: _pose(0.15, 0.0, 0.03)}
+    current = {1: _pose(0.004, 0.0, 0.03), 2: _pose(0.15, 0.0, 0.03)}
+    params, out, drift, log, settings = _boxes(start, current, seen)
+    tried = log["pull_back"]["tried"]
+    assert tried[0]["candidate"] == "seen" and tried[0]["overlapping"] == [1]
+    assert log["pull_back"]["kept"] == "all"
+    assert np.allclose(out[1].world_from_object, start[1], atol=1e-9)

@@ -57,6 +57,18 @@ def test_order_decides_which_piece_is_cut():
         0.035 - CUT_CLEARANCE_M, abs=1e-6)
 
 
+def test_a_visual_overlap_geomopt_keeps_is_cut_not_pushed():
+    # B's visual mesh reaches 2 mm into A's (an overlap geomopt accepts: <= 3 mm), its
+    # piece 7 mm into A's piece: the cut ends B's piece at A's piece, so depenetration
+    # does not push B up by the pieces' 7 mm for the meshes' 2 mm
+    pieces, meshes, poses = _plate_and_cube()
+    poses[2] = _pose([0.01, 0.0, 0.033 + 0.02])
+    out, report = shave_overlaps(pieces, meshes, poses, order=[1, 2])
+    lowest = out[2][0].vertices[:, 2].min() + poses[2][2, 3]
+    assert lowest == pytest.approx(0.04 + CUT_CLEARANCE_M, abs=1e-6)
+    assert report[2].depth_before_m > 6e-3 and not piece_overlaps(out, poses)
+
+
 def test_visual_meshes_that_interpenetrate_are_left_to_depenetration():
     # the visual meshes are the pieces: B is really sunk 5 mm into A (and A 3 mm into
     # the table), which the depenetration must lift, not a cut hide

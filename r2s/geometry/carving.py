@@ -60,6 +60,10 @@ OTHER_MARGIN_M = 0.0
 the camera saw that object there, so no part of this one lies in front of it (its
 reading's noise only decides how much of this object's hidden material next to that
 surface is kept)."""
+OTHER_MASK_MARGIN_M = 0.002
+"""In front of a reading anywhere in another instance's mask outside the rim band, the
+margin: the reading may be a mixed one at that object's outline or this object's surface
+under a mask that bled onto it, so a little of the sensor's noise is allowed."""
 
 
 @dataclass(frozen=True)
@@ -73,7 +77,8 @@ class CarveView:
     module docstring; background : (H, W) bool or None, pixels the masks call background,
     outside the rim (the silhouette test of the module docstring); others_inner : (H, W)
     bool or None, pixels at least ``other_inner_px`` inside another instance's mask
-    (:func:`seen_as_other`).
+    (:func:`seen_as_other`); others_any : (H, W) bool or None, every pixel of another
+    instance's mask outside the rim band, carved with ``other_mask_margin_m``.
     """
 
     K: np.ndarray
@@ -88,6 +93,8 @@ class CarveView:
     background: Optional[np.ndarray] = None
     others_inner: Optional[np.ndarray] = None
     other_margin_m: float = OTHER_MARGIN_M
+    others_any: Optional[np.ndarray] = None
+    other_mask_margin_m: float = OTHER_MASK_MARGIN_M
 
 
 def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray,
@@ -98,14 +105,17 @@ def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray
                table_tolerance_m: float = TABLE_TOLERANCE_M,
                table_margin_m: float = TABLE_MARGIN_M,
                masks: Optional[np.ndarray] = None,
-               close_px: int = MASK_CLOSE_PX, other_inner_px: int = 0) -> CarveView:
+               close_px: int = MASK_CLOSE_PX, other_inner_px: int = 0,
+               other_mask_margin_m: Optional[float] = None) -> CarveView:
     """A :class:`CarveView` for an object whose kept observations are ``own_pixels``
     ((N, 2) int (row, col)): its rim (``band_px`` outside them, ``rim_px`` inside) is
     exempt from carving; holes are filled as the module docstring says. ``plane``
     (point (3,), unit normal (3,), world frame) enables the table test and ``masks``
     ((H, W) int instance ids, 0 = background) the silhouette test of the module
     docstring; with ``masks``, ``other_inner_px`` > 0 marks the pixels deep inside
-    another instance's mask for :func:`seen_as_other`."""
+    another instance's mask for :func:`seen_as_other`, and ``other_mask_margin_m`` (metres,
+    None = off) carves in front of the readings of every other instance's pixel outside
+    the rim band (module docstring)."""
     depth = fill_edge_holes(np.asarray(depth_m, dtype=np.float64), hole_fill_px)
     own = np.zeros(depth.shape, dtype=bool)
     pix = np.asarray(own_pixels, dtype=np.int64).reshape(-1, 2)
@@ -124,12 +134,17 @@ def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray
     others_inner = None
     if masks is not None and other_inner_px > 0:
         others_inner = _inside_other_instances(np.asarray(masks), pix, other_inner_px) & ~grown
+    others_any = None
+    if masks is not None and other_mask_margin_m is not None:
+        others_any = _other_instances(np.asarray(masks), pix) & ~grown
     return CarveView(K=np.asarray(K, dtype=np.float64),
                      world_from_camera=np.asarray(world_from_camera, dtype=np.float64),
                      depth_m=depth, exempt=grown & ~inner, own=own, margin_m=float(margin_m),
                      margin_quadratic_m=float(margin_quadratic_m), table_depth_m=table,
                      table_margin_m=float(table_margin_m), background=background,
-                     others_inner=others_inner)
+                     others_inner=others_inner, others_any=others_any,
+                     other_mask_margin_m=(OTHER_MASK_MARGIN_M if other_mask_margin_m is None
+                                          else float(other_mask_margin_m)))
 
 
 def _inside_other_instances(masks: np.ndarray, own_pixels: np.ndarray, inner_px: int
@@ -139,12 +154,19 @@ def _inside_other_instances(masks: np.ndarray, own_pixels: np.ndarray, inner_px:
     instance: away from its outline, where a neighbour's bleed or an edge's mixed reading
     could be this object's surface."""
     labels = np.asarray(masks)
+    size = 2 * int(inner_px) + 1
+    uniform = ndimage.minimum_filter(labels, size=size) == ndimage.maximum_filter(labels, size=size)
+    return uniform & _other_instances(labels, own_pixels)
+
+
+def _other_instances(masks: np.ndarray, own_pixels: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels of an instance other than the one most of ``own_pixels`` ((N, 2)
+    row, col) lie in."""
+    labels = np.asarray(masks)
     own_ids = labels[own_pixels[:, 0], own_pixels[:, 1]] if len(own_pixels) else labels[:0, 0]
     own_ids = own_ids[own_ids > 0]
     own_id = np.bincount(own_ids).argmax() if len(own_ids) else 0
-    size = 2 * int(inner_px) + 1
-    uniform = ndimage.minimum_filter(labels, size=size) == ndimage.maximum_filter(labels, size=size)
-    return uniform & (labels > 0) & (labels != own_id)
+    return (labels > 0) & (labels != own_id)
 
 
 def covered_by_masks(masks: np.ndarray, close_px: int = MASK_CLOSE_PX) -> np.ndarray:
@@ -269,4 +291,6 @@ def seen_free(view: CarveView, points_world: np.ndarray) -> np.ndarray:
             free |= ok & view.background[row, col] & ~(read & (d < z - margin))
         if view.others_inner is not None:
             free |= read & view.others_inner[row, col] & (z < d - view.other_margin_m)
+        if view.others_any is not None:
+            free |= read & view.others_any[row, col] & (z < d - view.other_mask_margin_m)
     return free

@@ -195,9 +195,13 @@ BELOW_SUPPORT_M = 0.5e-3
 """A piece reaching further below the table plane than this is cut at the plane."""
 
 
-VISUAL_PENETRATION_M = 1.5e-3
+VISUAL_PENETRATION_M = 3.0e-3
 """Visual meshes interpenetrating deeper than this are a real overlap, not the pieces'
-overshoot (geomopt leaves at most about 1 mm on the seed demo)."""
+overshoot: geomopt keeps init's poses where their overlaps are at most 3 mm
+(r2s.geomopt.optimise.SMALL_PENETRATION_M), so an overlap it accepts is cut here, not
+pushed apart by the pieces' larger overlap (1.5 mm before 2026-11-29: on the realistic
+scene_05 a 1.6 mm visual overlap of two clamps let depenetration push one 10.9 mm;
+docs/completion.md)."""
 
 VISUAL_SAMPLES = 3000
 """Surface samples of a mesh for the visual penetration test."""

@@ -76,6 +76,12 @@ class RepairSettings(BaseModel):
                           "after depenetration back towards its start (all, all but what "
                           "then moves, halfway), keeping the first that still rests "
                           "(r2s/physopt/pull_back.py); COM, mass and friction stay tuned.")
+    pull_back_to_seen: bool = Field(
+        True, description="Before the start poses, try the poses where init saw the objects "
+                          "(all, then all but what then moves), undoing geomopt's moves and "
+                          "the depenetration where the judge finds that the scene still "
+                          "rests (r2s/physopt/pull_back.py; off: the behaviour before "
+                          "2026-11-29).")
     fallback_severity: float = Field(
         0.5, gt=0, description="The unbounded repairs run when an object's check drift is at "
                                "least this fraction of the judge's criterion after the "

@@ -254,6 +254,12 @@ class Options(StageOptions):
                              "column whose top the camera saw there at about its depth "
                              "(nothing hid that top); 0 = off (see geometry/carving.py, "
                              "geometry/completion.py).")
+    completion_other_mask_margin_m: float = Field(
+        0.002, description="A completed object keeps nothing more than this far (metres) in "
+                           "front of the reading at any pixel of another instance's mask "
+                           "outside its own rim band (the camera saw that object there); "
+                           "negative = off, the default before 2026-11-29 (see "
+                           "geometry/carving.py, docs/completion.md).")
     completion_carve_silhouette: bool = Field(
         True, description="Carve a completed object where the sensor read no depth but no "
                           "instance mask covers the pixel (the camera saw background there: "
@@ -645,7 +651,10 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
     view = (carve_view(cam.K, cam.world_from_camera, scene.depth_m, pix, plane=table,
                        band_px=o.completion_carve_band_px,
                        masks=scene.masks if o.completion_carve_silhouette else None,
-                       other_inner_px=o.completion_other_inner_px)
+                       other_inner_px=o.completion_other_inner_px,
+                       other_mask_margin_m=(o.completion_other_mask_margin_m
+                                            if o.completion_other_mask_margin_m >= 0
+                                            else None))
             if o.completion_carve else None)
     cap, cap_src = np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
     if o.completion_border_extent_m > 0:
