@@ -131,12 +131,14 @@ def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray
             sees_table = np.abs(raw - plane_z) < tol
         table = np.where(sees_table & ~grown, plane_z, np.nan)
     background = None if masks is None else ~_covered_once(masks, close_px) & ~grown
-    others_inner = None
-    if masks is not None and other_inner_px > 0:
-        others_inner = _inside_other_instances(np.asarray(masks), pix, other_inner_px) & ~grown
-    others_any = None
-    if masks is not None and other_mask_margin_m is not None:
-        others_any = _other_instances(np.asarray(masks), pix) & ~grown
+    others_inner = others_any = None
+    if masks is not None and (other_inner_px > 0 or other_mask_margin_m is not None):
+        labels = np.asarray(masks)
+        others = _other_instances(labels, pix) & ~grown
+        if other_inner_px > 0:
+            others_inner = others & _uniform_within(labels, other_inner_px)
+        if other_mask_margin_m is not None:
+            others_any = others
     return CarveView(K=np.asarray(K, dtype=np.float64),
                      world_from_camera=np.asarray(world_from_camera, dtype=np.float64),
                      depth_m=depth, exempt=grown & ~inner, own=own, margin_m=float(margin_m),
@@ -147,16 +149,12 @@ def carve_view(K: np.ndarray, world_from_camera: np.ndarray, depth_m: np.ndarray
                                           else float(other_mask_margin_m)))
 
 
-def _inside_other_instances(masks: np.ndarray, own_pixels: np.ndarray, inner_px: int
-                            ) -> np.ndarray:
-    """(H, W) bool: pixels of an instance other than the one most of ``own_pixels`` ((N, 2)
-    row, col) lie in, with every pixel within ``inner_px`` (square window) of the same
-    instance: away from its outline, where a neighbour's bleed or an edge's mixed reading
-    could be this object's surface."""
-    labels = np.asarray(masks)
+def _uniform_within(labels: np.ndarray, inner_px: int) -> np.ndarray:
+    """(H, W) bool: pixels with every pixel within ``inner_px`` (square window) of the same
+    instance id: away from an outline, where a neighbour's bleed or an edge's mixed reading
+    could be another object's surface."""
     size = 2 * int(inner_px) + 1
-    uniform = ndimage.minimum_filter(labels, size=size) == ndimage.maximum_filter(labels, size=size)
-    return uniform & _other_instances(labels, own_pixels)
+    return ndimage.minimum_filter(labels, size=size) == ndimage.maximum_filter(labels, size=size)
 
 
 def _other_instances(masks: np.ndarray, own_pixels: np.ndarray) -> np.ndarray:
