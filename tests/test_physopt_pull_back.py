@@ -40,9 +40,11 @@ def test_interpolated_pose_moves_the_centre_straight_and_turns_on_the_shortest_a
                                              0.01 + 0.01 * np.sin(np.radians(40))), abs=1e-9)
 
 
-def _boxes(start_poses: dict, current_poses: dict, seen_poses: dict | None = None):
-    """Two 6 cm cubes on the table (z = 0), 10 cm apart; ``current_poses`` where the
-    repairs left them, ``start_poses`` where the solve started."""
+def _boxes(start_poses: dict, current_poses: dict, seen_poses: dict | None = None,
+           one_by_one: bool = False):
+    """Two 6 cm cubes on the table (z = 0); ``current_poses`` where the repairs left them,
+    ``start_poses`` where the solve started, ``seen_poses`` where init saw them; the
+    one-by-one step only when asked (the other tests are about the group candidates)."""
     cube = trimesh.creation.box([0.06] * 3)
     lo, hi = inner_box(cube.bounds)
     params = {i: ObjectParams(world_from_object=current_poses[i], mass_kg=0.2,
@@ -57,7 +59,7 @@ def _boxes(start_poses: dict, current_poses: dict, seen_poses: dict | None = Non
     log = {"objects": {1: [], 2: []}, "rounds": []}
     centres = {1: np.zeros(3), 2: np.zeros(3)}
     out, out_drift = pull_back(make_world, params, drift, start_poses, centres, [1, 2],
-                               settings, log, seen=seen_poses)
+                               settings, log, seen=seen_poses, one_by_one=one_by_one)
     return params, out, out_drift, log, settings
 
 
@@ -151,3 +153,23 @@ def test_a_seen_pose_inside_the_table_is_left_out_before_any_check():
     assert tried[0]["candidate"] == "seen" and tried[0]["overlapping"] == [1]
     assert log["pull_back"]["kept"] == "all"
     assert np.allclose(out[1].world_from_object, start[1], atol=1e-9)
+
+
+@pytest.mark.slow
+def test_one_object_goes_halfway_back_when_its_seen_pose_overlaps_a_neighbour():
+    # init saw cube 1 with 4 mm of it inside cube 2 (centres 56 mm apart, 60 mm cubes);
+    # the solve started and ended 20 mm away. Every group candidate is refused for the
+    # overlap; one by one, the seen pose is refused too, and halfway (10 mm from the seen
+    # pose, a 6 mm gap) rests and is kept.
+    seen = {1: _pose(0.056, 0.0, 0.03), 2: _pose(0.0, 0.0, 0.03)}
+    start = {1: _pose(0.076, 0.0, 0.03), 2: _pose(0.0, 0.0, 0.03)}
+    params, out, drift, log, settings = _boxes(start, dict(start), seen, one_by_one=True)
+    record = log["pull_back"]
+    assert record["away_from_seen"] == [1]
+    assert [(t["candidate"], t["fraction"]) for t in record["tried"]] == [
+        ("seen", 1.0), ("object 1", 1.0), ("object 1", 0.5)]
+    assert record["tried"][1]["overlapping"] == [1]
+    assert record["one_by_one"] == [{"id": 1, "fraction": 0.5}]
+    assert out[1].world_from_object[:3, 3] == pytest.approx([0.066, 0.0, 0.03], abs=1e-9)
+    assert out[2] is params[2]
+    assert settings.moving(drift) == []

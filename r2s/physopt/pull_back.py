@@ -33,6 +33,14 @@ back are checked in the judge's worlds, in order of least observation change:
 At most ``2 * MAX_EXCLUSIONS + 3`` checks. The first candidate in which nothing moves (the same at-rest tolerance the repairs
 answer to) is kept; when none rests, the repaired state stands.
 
+4. ``object N`` (``one_by_one``): from the state that stands, each object still away from
+   its seen pose (else its start pose), farthest first, is tried alone at that pose and
+   then ``ONE_BY_ONE_FRACTIONS`` of the way back, the others where they are; each that
+   rests is kept before the next object is tried (``MAX_ONE_BY_ONE_CHECKS`` checks at
+   most). The candidates above put whole groups back at once, so one object that cannot
+   go back (a fruit whose tuned COM only holds it where it rolled to) kept every other
+   one where the repairs had left it.
+
 Frames: poses are (4, 4) ``world_from_object``; ``centres`` (3,) each mesh's centroid in
 its object frame, the point whose motion counts (as in
 :mod:`r2s.physopt.observation_bound`).
@@ -64,6 +72,11 @@ the object out of the candidate: about 1 mm of true overlap, as geomopt keeps up
 of its meshes' (r2s.geomopt.optimise.SMALL_PENETRATION_M). At 1.5 mm (the depenetration's
 tolerance) fresh scene_03's banana and drill, touching where init saw them, were left
 out."""
+ONE_BY_ONE_FRACTIONS = (1.0, 0.5)
+"""How far back (share of the way to its target pose) one object is tried, in order."""
+MAX_ONE_BY_ONE_CHECKS = 12
+"""Most candidates the one-by-one step tries in a scene (each a judge-like check, about a
+second of two 5 s rollouts on the 2 cores)."""
 
 
 def interpolated_pose(target: np.ndarray, current: np.ndarray, centre_in_object: np.ndarray,
@@ -102,7 +115,8 @@ def moved_objects(params: Params, start: Mapping[int, np.ndarray],
 def pull_back(make_world: MakeWorld, params: Params, drift: Drift,
               start: Mapping[int, np.ndarray], centres: Mapping[int, np.ndarray],
               export_order: list[int], settings, log: dict,
-              seen: Optional[Mapping[int, np.ndarray]] = None) -> tuple[Params, Drift]:
+              seen: Optional[Mapping[int, np.ndarray]] = None,
+              one_by_one: bool = True) -> tuple[Params, Drift]:
     """The repaired state (``params`` and its check ``drift``) with poses put back
     towards ``seen`` (id -> (4, 4), where init saw the objects; None: not tried) or
     ``start`` (id -> (4, 4), the solve's poses after depenetration) where the
@@ -121,12 +135,13 @@ def pull_back(make_world: MakeWorld, params: Params, drift: Drift,
     orders = judge_orders(export_order)
 
     def attempt(name: str, ids: list[int], towards_start: float,
-                target: Mapping[int, np.ndarray] = start
+                target: Mapping[int, np.ndarray] = start, base: Params = params
                 ) -> tuple[list[int], Optional[tuple[Params, Drift]]]:
-        """Check one candidate: (its movers, and the state with its check when it rests,
-        else None); a resting candidate's objects get their log lines."""
-        trial = {**params, **{i: params[i].with_pose(interpolated_pose(
-            target[i], params[i].world_from_object, centres[i], towards_start)) for i in ids}}
+        """Check one candidate, ``ids`` moved from ``base`` towards ``target``: (its
+        movers, and the state with its check when it rests, else None); a resting
+        candidate's objects get their log lines."""
+        trial = {**base, **{i: base[i].with_pose(interpolated_pose(
+            target[i], base[i].world_from_object, centres[i], towards_start)) for i in ids}}
         if target is not start:
             overlapping = _overlapping(make_world, trial, ids)
             if overlapping:
@@ -140,10 +155,11 @@ def pull_back(make_world: MakeWorld, params: Params, drift: Drift,
                                 "moving": movers})
         if movers:
             return movers, None
-        record["kept"] = name
+        if record["kept"] is None:
+            record["kept"] = name
         towards = "seen" if target is not start else "start"
         for i in ids:
-            before = pose_displacement(target[i], params[i].world_from_object, centres[i])
+            before = pose_displacement(target[i], base[i].world_from_object, centres[i])
             after = pose_displacement(target[i], trial[i].world_from_object, centres[i])
             log["objects"][i].append(
                 f"pulled back towards its {towards} pose ({name}): "
@@ -158,7 +174,39 @@ def pull_back(make_world: MakeWorld, params: Params, drift: Drift,
         kept = _back_with_exclusions(attempt, moved, "all", start)
         if kept is None:
             kept = attempt("halfway", moved, 0.5)[1]
-    return kept if kept is not None else (params, drift)
+    state = kept if kept is not None else (params, drift)
+    if one_by_one:
+        target = seen if seen is not None else start
+        state = _one_by_one(attempt, state, target, centres, record)
+    return state
+
+
+def _one_by_one(attempt, state: tuple[Params, Drift], target: Mapping[int, np.ndarray],
+                centres: Mapping[int, np.ndarray], record: dict) -> tuple[Params, Drift]:
+    """Step 4 of the module docstring from ``state`` (params, drift): each object still
+    away from ``target``, farthest first, alone back (``ONE_BY_ONE_FRACTIONS``); every
+    one that rests is kept. ``record["one_by_one"]`` lists what was kept."""
+    params = state[0]
+    away = moved_objects(params, target, centres)
+
+    def distance(i: int) -> float:
+        m, deg = pose_displacement(target[i], params[i].world_from_object, centres[i])
+        return m + 1e-3 * deg  # a degree weighs a millimetre
+
+    kept_here: list[dict] = []
+    record["one_by_one"] = kept_here
+    checks = 0
+    for i in sorted(away, key=distance, reverse=True):
+        for fraction in ONE_BY_ONE_FRACTIONS:
+            if checks >= MAX_ONE_BY_ONE_CHECKS:
+                return state
+            checks += 1
+            _, rested = attempt(f"object {i}", [i], fraction, target, state[0])
+            if rested is not None:
+                state = rested
+                kept_here.append({"id": i, "fraction": fraction})
+                break
+    return state
 
 
 def _overlapping(make_world: MakeWorld, params: Params, ids: list[int]) -> list[int]:

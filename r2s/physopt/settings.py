@@ -82,6 +82,11 @@ class RepairSettings(BaseModel):
                           "the depenetration where the judge finds that the scene still "
                           "rests (r2s/physopt/pull_back.py; off: the behaviour before "
                           "2026-11-29).")
+    pull_back_one_by_one: bool = Field(
+        True, description="Then each object still away from where it was seen, farthest "
+                          "first, alone back at that pose or halfway, the others where they "
+                          "are, kept where the scene still rests (at most 12 checks; "
+                          "r2s/physopt/pull_back.py).")
     fallback_severity: float = Field(
         0.5, gt=0, description="The unbounded repairs run when an object's check drift is at "
                                "least this fraction of the judge's criterion after the "

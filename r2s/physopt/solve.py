@@ -60,7 +60,8 @@ def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
         progress("poses back towards where the solve started", 0.95)
         params, drift = pull_back(make_world, params, drift, start, centres,
                                   [o.id for o in state.objects], opt, log,
-                                  seen=seen if opt.pull_back_to_seen else None)
+                                  seen=seen if opt.pull_back_to_seen else None,
+                                  one_by_one=opt.pull_back_one_by_one)
     flags, _ = displacement_flags(seen, {i: p.world_from_object for i, p in params.items()},
                                   centres, opt.observation_tolerance_m,
                                   opt.observation_tolerance_deg)
