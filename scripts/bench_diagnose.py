@@ -64,6 +64,7 @@ CASES: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
     "focal_error": ({}, ("focal_length",)),
     "principal_point_error": ({}, ()),
     "depth_shift": ({}, ()),
+    "radial_depth": ({}, ()),
 }
 """case -> (synth effects, the effects diagnose should name). ``row_depth``,
 ``principal_point_error``, ``disparity_bias`` and ``dark_depth`` are outside the catalogue
@@ -73,7 +74,7 @@ diagnose should report them as unexplained structure and name nothing. ``focal_e
 injected by this script too) is in the catalogue as ``focal_length``."""
 
 UNCATALOGUED = {"row_depth", "principal_point_error", "disparity_bias", "dark_depth",
-                "depth_shift"}
+                "depth_shift", "radial_depth"}
 ROW_DEPTH_ERROR_M = 0.006
 """The uncatalogued effect: depth reads long by 6 mm x (row offset from the centre,
 -1..1)^2, a gutter along the image rows."""
@@ -93,6 +94,11 @@ registration error of real RGB-D sensors."""
 PRINCIPAL_POINT_ERROR = 0.025
 """A third: camera.json declares cx, cy shifted by 2.5 % of the image width and height
 (8 and 6 px at 320 x 240) from the true ones."""
+
+RADIAL_DEPTH_ERROR_M = 0.006
+"""``radial_depth``: depth reads long by 6 mm x (radius from the image centre / half the
+diagonal)^2, the vignetting-like bias of time-of-flight sensors: a bowl in depth, where a
+lens distortion bends the rays instead."""
 
 SCENE_COUNTS = (4, 5, 6)
 """Objects per scene cycle through these with the seed (varied scenes; with 3 objects a
@@ -208,7 +214,22 @@ def add_depth_shift(scene: Path, fraction: float = DEPTH_SHIFT_FRACTION) -> None
     _record_injected(scene, "depth_shift", {"fraction_of_width": fraction})
 
 
-SCRIPT_INJECT = {"row_depth": add_row_depth_error, "focal_error": add_focal_error,
+def add_radial_depth_error(scene: Path, error_m: float = RADIAL_DEPTH_ERROR_M) -> None:
+    """Inject a depth error that grows with the squared radius from the image centre into
+    input/depth.png (recorded in gt/ only): ``error_m`` at the corners."""
+    def transform(depth: np.ndarray) -> np.ndarray:
+        h, w = depth.shape
+        v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+        r2 = ((u - (w - 1) / 2) ** 2 + (v - (h - 1) / 2) ** 2) / (((w - 1) / 2) ** 2
+                                                                  + ((h - 1) / 2) ** 2)
+        return depth + error_m * r2
+
+    _rewrite_depth(scene, transform)
+    _record_injected(scene, "radial_depth", {"error_corner_m": error_m})
+
+
+SCRIPT_INJECT = {"row_depth": add_row_depth_error, "radial_depth": add_radial_depth_error,
+                 "focal_error": add_focal_error,
                  "principal_point_error": add_principal_point_error,
                  "disparity_bias": add_disparity_bias, "dark_depth": add_dark_depth_bias,
                  "depth_shift": add_depth_shift}
