@@ -65,12 +65,15 @@ CASES: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
     "principal_point_error": ({}, ()),
     "depth_shift": ({}, ()),
     "radial_depth": ({}, ()),
+    "scale+radial": ({"depth_scale": "1.04"}, ("depth_scale",)),
 }
 """case -> (synth effects, the effects diagnose should name). ``row_depth``,
 ``principal_point_error``, ``disparity_bias`` and ``dark_depth`` are outside the catalogue
 (:func:`add_row_depth_error`, :func:`add_principal_point_error`,
 :func:`add_disparity_bias`, :func:`add_dark_depth_bias`, injected by this script only):
-diagnose should report them as unexplained structure and name nothing. ``focal_error`` (:func:`add_focal_error`,
+diagnose should report them as unexplained structure and name nothing. ``scale+radial``
+mixes one of each: a 4 % depth scale (named, sized) and ``radial_depth`` (reported as
+unexplained, report.json's ``unexplained``). ``focal_error`` (:func:`add_focal_error`,
 injected by this script too) is in the catalogue as ``focal_length``."""
 
 UNCATALOGUED = {"row_depth", "principal_point_error", "disparity_bias", "dark_depth",
@@ -232,7 +235,7 @@ SCRIPT_INJECT = {"row_depth": add_row_depth_error, "radial_depth": add_radial_de
                  "focal_error": add_focal_error,
                  "principal_point_error": add_principal_point_error,
                  "disparity_bias": add_disparity_bias, "dark_depth": add_dark_depth_bias,
-                 "depth_shift": add_depth_shift}
+                 "depth_shift": add_depth_shift, "scale+radial": add_radial_depth_error}
 """case -> the function that injects it into a synthesised scene."""
 
 

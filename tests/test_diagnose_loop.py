@@ -19,6 +19,7 @@ from r2s.diagnose.stats.blocks import blocks_of
 from r2s.diagnose.data import (RegistrationData, Residuals, ScaleObs, SupportData,
                                TableShapeData)
 from r2s.diagnose.effects import all_effects, get_effect
+from r2s.diagnose.effects.base import EffectFit
 from r2s.diagnose.effects.lens_distortion import undistort_points
 from r2s.diagnose.stats.ranking import NoiseBar, rank, supported
 from r2s.diagnose.stats.noise import sampling_bar, scale_noise_level
@@ -137,6 +138,32 @@ def test_lens_fit_to_a_row_pattern_is_not_named():
     assert not supported(fit, 2.0) or "not its cause" in (leaves_structure(fit, res, 1e-3) or "")
     lens = Residuals(table_shape=_shape(_table_points(k1=-0.12)))
     assert leaves_structure(get_effect("lens_distortion").fit(lens), lens, 1e-3) is None
+
+
+def test_an_effect_with_evidence_beside_the_table_shape_is_not_passed_over_for_it():
+    # a row pattern on the table; a fit predicted to take 14 % of it off (still structured)
+    before = Residuals(table_shape=_shape(_table_points(row_error_m=0.006)))
+    after = Residuals(table_shape=_shape(_table_points(row_error_m=0.0054)))
+    drop = (blocks_of(before)["table_shape"].sse - blocks_of(after)["table_shape"].sse)
+    assert 0.1 < drop / blocks_of(before)["table_shape"].sse < 0.2
+    n = len(blocks_of(before)["table_shape"].values)
+
+    def scoring(target: float) -> EffectFit:
+        """A one-parameter depth fit predicting ``after``, whose score is ``target``."""
+        explained = -target + np.log(n)
+        out = EffectFit(effect="depth_scale", params={"scale": 1.04}, n_params=1,
+                        sse_before=500.0, residual_sse_after=500.0 - explained, n_obs=n,
+                        residuals_after=after)
+        assert out.score == pytest.approx(target)
+        return out
+
+    # its score is the table's fall and 1 more: without the table it is not supported
+    weak = scoring(-drop - 1.0)
+    assert "not its cause" in leaves_structure(weak, before, 1e-3, min_evidence=2.0)
+    # 30 more (the table's distance, the priors' sizes): named, the structure left for later
+    strong = scoring(-drop - 30.0)
+    assert leaves_structure(strong, before, 1e-3, min_evidence=2.0) is None
+    assert "not its cause" in leaves_structure(strong, before, 1e-3)  # the rule before
 
 
 # ---- false alarms ---------------------------------------------------------------------

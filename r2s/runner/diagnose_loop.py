@@ -129,7 +129,8 @@ def _choose(rnd: Round, residuals, cfg: LoopConfig) -> tuple[Optional[EffectFit]
     for fit in rnd.fits:
         if not supported(fit, cfg.min_evidence):
             break
-        why = leaves_structure(fit, residuals, cfg.structure_alpha)
+        why = leaves_structure(fit, residuals, cfg.structure_alpha,
+                               min_evidence=cfg.min_evidence)
         if why is None:
             return fit, skipped
         skipped.append({"effect": fit.effect, "why": why})

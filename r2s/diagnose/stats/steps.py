@@ -8,7 +8,8 @@ kept only when the measured SSE of the claimed blocks fell by at least ``min_sha
 the predicted fall (and by more than ``min_gain``); otherwise it is reverted. An effect is
 also not named when the residual it is predicted to leave is still structured
 (:mod:`r2s.diagnose.stats.structure_test`) and it explains less than ``min_structure_share``
-of the structured block: it would be the nearest catalogued effect, not the cause.
+of the structured block, unless it is supported without that block (the table's
+distance, the priors): otherwise it would be the nearest catalogued effect, not the cause.
 """
 
 from __future__ import annotations
@@ -83,10 +84,16 @@ def judge_step(fit: EffectFit, before: Residuals, after: Optional[Residuals],
 
 
 def leaves_structure(fit: EffectFit, before: Residuals, alpha: float,
-                     min_structure_share: float = 0.8) -> Optional[str]:
+                     min_structure_share: float = 0.8,
+                     min_evidence: Optional[float] = None) -> Optional[str]:
     """Why ``fit`` only explains part of a structured residual (None when it does not):
     the residual it predicts to leave in the table's shape is still structured and it
-    explains less than ``min_structure_share`` of that block."""
+    explains less than ``min_structure_share`` of that block. With ``min_evidence``, an
+    effect that is supported without the table's shape (its score with the table-shape
+    block's fall taken out still below ``-min_evidence``: the table's distance, the
+    priors' sizes) is not passed over: the structure is then a second thing wrong, left
+    for the test after the loop, not what the effect was chosen for (a 4 % depth scale
+    with a radial depth error: docs/diagnose.md, section 6)."""
     if fit.residuals_after is None or "table_shape" not in claimed_blocks(fit, before):
         return None
     left = test_structure(fit.residuals_after, alpha)
@@ -96,6 +103,8 @@ def leaves_structure(fit: EffectFit, before: Residuals, alpha: float,
     sa = block_sse(fit.residuals_after, ("table_shape",)).get("table_shape", 0.0)
     share = (sb - sa) / sb if sb > 0 else 0.0
     if share >= min_structure_share:
+        return None
+    if min_evidence is not None and fit.score + max(0.0, sb - sa) < -min_evidence:
         return None
     return (f"{fit.effect} explains {100 * share:.0f} % of the table's structured residual "
             f"and leaves it structured (p = {left.p_value:.2g}): not its cause")
