@@ -30,16 +30,17 @@ back are checked in the judge's worlds, in order of least observation change:
 3. ``halfway``: every moved object halfway back (position of its centre and rotation
    interpolated).
 
-At most ``2 * MAX_EXCLUSIONS + 3`` checks. The first candidate in which nothing moves (the same at-rest tolerance the repairs
-answer to) is kept; when none rests, the repaired state stands.
+4. ``object N`` (``one_by_one``): from the state that stands after 0-3, each object still
+   away from its seen pose (else its start pose), farthest first, is tried alone at that
+   pose and then ``ONE_BY_ONE_FRACTIONS`` of the way back, the others where they are;
+   each that rests is kept before the next object is tried (``MAX_ONE_BY_ONE_CHECKS``
+   candidates at most). The candidates 0-3 put whole groups back at once, so one object
+   that cannot go back (a fruit whose tuned COM only holds it where it rolled to) kept
+   every other one where the repairs had left it.
 
-4. ``object N`` (``one_by_one``): from the state that stands, each object still away from
-   its seen pose (else its start pose), farthest first, is tried alone at that pose and
-   then ``ONE_BY_ONE_FRACTIONS`` of the way back, the others where they are; each that
-   rests is kept before the next object is tried (``MAX_ONE_BY_ONE_CHECKS`` checks at
-   most). The candidates above put whole groups back at once, so one object that cannot
-   go back (a fruit whose tuned COM only holds it where it rolled to) kept every other
-   one where the repairs had left it.
+Candidates 0-3 take at most ``2 * MAX_EXCLUSIONS + 3`` checks; the first in which nothing
+moves (the same at-rest tolerance the repairs answer to) is kept, and when none rests the
+repaired state stands. Step 4 then starts from that state.
 
 Frames: poses are (4, 4) ``world_from_object``; ``centres`` (3,) each mesh's centroid in
 its object frame, the point whose motion counts (as in
