@@ -288,6 +288,22 @@ def test_an_object_across_two_supports_spans_the_gap_between_them():
     assert _lowest_at(alone, 0.0) == pytest.approx(0.0, abs=0.004)
 
 
+def test_what_overhangs_the_block_it_rests_on_does_not_hang_below_the_blocks_top():
+    """A clamp-like object lies on a 80 x 80 x 208 mm block (x < 0): its top is seen at
+    250 mm over the block and at 220 mm where it overhangs the block's edge (0 < x <
+    60 mm). Where it rests it is 250 - 208 = 42 mm thick; the overhang, taken as thick,
+    would end at 178 mm, 30 mm below the block's top, and catch on its edge. Its
+    underside there is at the block's top instead (within a cell, 4 mm), and over the
+    block it still rests on the block's top."""
+    rng = np.random.default_rng(5)
+    on = np.c_[rng.uniform(-0.07, 0.0, 4000), rng.uniform(-0.02, 0.02, 4000), np.full(4000, 0.25)]
+    out = np.c_[rng.uniform(0.0, 0.06, 3000), rng.uniform(-0.02, 0.02, 3000), np.full(3000, 0.22)]
+    block = trimesh.creation.box((0.08, 0.08, 0.208)).apply_translation([-0.04, 0.0, 0.104])
+    done = complete_from_points(np.r_[on, out], [0, 0, 0], [0, 0, 1], under_meshes_world=[block])
+    assert _lowest_at(done, -0.04) == pytest.approx(0.208, abs=0.004)
+    assert _lowest_at(done, 0.04) == pytest.approx(0.208, abs=0.004)
+
+
 def _lowest_at(done, x: float) -> float:
     """Height of the completed mesh's underside at (x, 0), cast upward from below."""
     import open3d as o3d

@@ -303,12 +303,13 @@ def _tops_below(meshes_world: Sequence[trimesh.Trimesh], plane_from_world: np.nd
     return out
 
 
-def _bridge(bottom: np.ndarray, carried: np.ndarray, top: np.ndarray, inside: np.ndarray,
+def _bridge(bottom: np.ndarray, under: np.ndarray, top: np.ndarray, inside: np.ndarray,
             gx: np.ndarray, gy: np.ndarray, cell: float, pts: np.ndarray) -> np.ndarray:
     """(nx, ny) ``bottom`` raised, for an object lying across others, to its thickness
     below its top in the columns where nothing carries it.
 
-    ``carried``: columns where another object's top lies under this one; ``inside``: the
+    ``under``: per column the top of the other object under this one (0: none; the
+    columns with one are the carried ones); ``inside``: the
     footprint's columns; ``gx``, ``gy``: column centres (plane frame); ``pts``: (N, 3)
     the object's observed points (plane frame). When at least
     ``BRIDGE_MIN_SHARE`` of the footprint is carried, the object's thickness is taken
@@ -316,7 +317,11 @@ def _bridge(bottom: np.ndarray, carried: np.ndarray, top: np.ndarray, inside: np
     columns, at least two cells). The free columns end that far below the top instead of
     reaching down to the table (a clamp across a can and a box spans the gap between
     them: it is rigid, and the space under it, which the camera could not see, stays
-    empty) when
+    empty). Where it overhangs what carries it, they also end no lower than the nearest
+    top that carries it (:func:`_carrier_floor`: a clamp on a block whose handle
+    overhangs the block's edge does not hang below the block's top, where it would rest
+    on the edge and tip; a support plane fitted to points under the object, often a
+    neighbour's side, does not shape them), when
 
     - that thickness is at most ``BRIDGE_MAX_THICKNESS_RATIO`` of the object's median
       height in the free columns (a thin thing across others, not a tall one beside a
@@ -329,6 +334,7 @@ def _bridge(bottom: np.ndarray, carried: np.ndarray, top: np.ndarray, inside: np
       down to 17 mm beside a drill whose first completion reaches under it stands on the
       table, not on the drill.
     """
+    carried = under > 0
     on = carried & inside
     free = inside & ~carried
     if not free.any() or on.sum() < max(BRIDGE_MIN_SHARE * inside.sum(), 3):
@@ -337,7 +343,8 @@ def _bridge(bottom: np.ndarray, carried: np.ndarray, top: np.ndarray, inside: np
                     2 * cell)
     if thickness > BRIDGE_MAX_THICKNESS_RATIO * float(np.median(top[free])):
         return bottom
-    bridged = np.where(free, np.maximum(bottom, top - thickness), bottom)
+    bridged = np.where(free, np.maximum(top - thickness, _carrier_floor(under, on, pts, gx, gy,
+                                                                        cell)), bottom)
     weight = np.where(inside, np.clip(top - bridged, 0.0, None), 0.0)
     com = np.array([np.sum(weight * gx), np.sum(weight * gy)]) / max(float(weight.sum()), 1e-12)
     try:
@@ -350,6 +357,27 @@ def _bridge(bottom: np.ndarray, carried: np.ndarray, top: np.ndarray, inside: np
     if np.mean(pts[:, 2] < bridged[ix, iy] - cell) > BRIDGE_MAX_POINTS_BELOW:
         return bottom
     return bridged
+
+
+def _carrier_floor(under: np.ndarray, on: np.ndarray, pts: np.ndarray, gx: np.ndarray,
+                   gy: np.ndarray, cell: float) -> np.ndarray:
+    """(nx, ny) the lowest a bridged object's underside may hang in each column where it
+    overhangs what carries it (outside the convex hull of the carried columns ``on``):
+    the top under it in the nearest carried column (``under`` the tops), but a cell below
+    the lowest of its own observed points (``pts``, plane frame) in the column where it
+    has some (what is seen lower than its carrier's top is seen hanging there). Columns
+    over the hull, a gap it spans between carriers, get no floor (-inf)."""
+    _, (ix, iy) = ndimage.distance_transform_edt(~on, return_indices=True)
+    floor = under[ix, iy]
+    px, py = _columns(pts, gx[0, 0], gy[0, 0], *gx.shape, cell)
+    lowest = np.full(gx.shape, np.inf)
+    np.minimum.at(lowest, (px, py), pts[:, 2])
+    floor = np.minimum(floor, lowest - cell)
+    try:
+        span = Delaunay(np.c_[gx[on], gy[on]]).find_simplex(np.c_[gx.ravel(), gy.ravel()]) >= 0
+    except QhullError:
+        return floor
+    return np.where(span.reshape(gx.shape), -np.inf, floor)
 
 
 def drop_isolated(points: np.ndarray, k: int = 8, factor: float = 4.0) -> np.ndarray:
@@ -469,7 +497,7 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
     if len(under_meshes_world):
         under = _tops_below(under_meshes_world, plane_from_world, gx, gy, top - 2 * cell)
         bottom = np.maximum(bottom, under)
-        bottom = _bridge(bottom, under > 0, top, sdf <= 0, gx, gy, cell, pts)
+        bottom = _bridge(bottom, under, top, sdf <= 0, gx, gy, cell, pts)
     # keep at least two cells of material in every column
     top = np.maximum(top, bottom + 2 * cell)
     inside_xy = -sdf
