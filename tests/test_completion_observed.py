@@ -146,6 +146,22 @@ def test_mask_bleed_changes_the_completion_little():
     assert (np.abs(bled.extents - exact.extents) / exact.extents).max() < 0.10
 
 
+def test_a_bleed_as_wide_as_a_shadow_changes_the_completion_little():
+    """A segmenter that takes the object's shadow in grows its mask far past the outer
+    ring the support band looks at: bleed onto the table of 50 % and 80 % of the box's
+    area, from 30 and 50 degrees. The completion stays within 5 % of its true extents and
+    0.95 volume IoU of the completion from the exact mask (without the flood from the
+    outline, 50 % bleed from 30 degrees made it 56 % too long and 141 % too deep)."""
+    for elevation_deg in (30.0, 50.0):
+        camera, depth, masks = _box_view(elevation_deg)
+        exact = _complete(depth, masks, camera, 1)
+        for fraction in (0.5, 0.8):
+            bled = _complete(depth, _bleed(masks, 1, fraction), camera, 1)
+            rel = np.abs(bled.extents - _truth_box().extents) / _truth_box().extents
+            assert rel.max() < 0.05, (elevation_deg, fraction, bled.extents)
+            assert _volume_iou(exact, bled) > 0.95
+
+
 def _occluded_scene():
     """A 95 mm tall box in front of a 140 mm tall cylinder that stands 80 mm behind it:
     the camera (35 degrees, from the box's side) sees only the cylinder's top part."""

@@ -8,10 +8,13 @@ stretch the footprint far past the object. Two tests, on the mask's pixels:
 - *support band*: points within ``plane_band_m`` of the support plane, on the mask's outer
   ``edge_px`` ring where it borders no other object's mask, are the table (bleed reaches
   into a mask from its outline; the object's own base is restored by the extrusion down to
-  the support); skipped when too few points would remain (a flat object lying on the table). Such points deeper inside
-  the mask are kept: table seen *through* an object's mask is cut off from the table
-  around it, while the floor of a plate or a tray, a few millimetres up, is the object's
-  own surface (dropping it carved the plate into a ring);
+  the support), and so are the band's points deeper inside that are joined to those
+  through band points (a bleed wider than the ring, such as a shadow a segmenter took into
+  the mask); skipped when too few points would remain (a flat object lying on the
+  table). Band points deeper inside and cut off from the outline by the object are kept:
+  table seen *through* an object's mask is cut off from the table around it, while the
+  floor of a plate or a tray, a few millimetres up, is the object's own surface (dropping
+  it carved the plate into a ring);
 - *surface continuity*: mask pixels are linked to their 8 image neighbours when their
   depths differ by less than ``max(jump_min_m, jump_fraction * z)`` (a surface seen even
   at a grazing angle changes depth smoothly from pixel to pixel; bleed onto something
@@ -68,6 +71,24 @@ def _window(pix: np.ndarray, pad: int = 1) -> tuple[np.ndarray, np.ndarray, tupl
     r0, c0 = pix.min(axis=0)
     h, w = pix.max(axis=0) - (r0, c0) + 1
     return pix[:, 0] - r0 + pad, pix[:, 1] - c0 + pad, (int(h) + 2 * pad, int(w) + 2 * pad)
+
+
+def _reached_from(seeds: np.ndarray, passable: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """(N,) bool: the ``passable`` pixels (N,) bool of the mask's (N, 2) ``pixels`` that are
+    8-connected to a ``seeds`` pixel through passable ones: the table that a wide bleed (a
+    shadow taken into the mask) carries in from the outline, past the outer ring."""
+    pix = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
+    out = np.zeros(len(pix), dtype=bool)
+    if not np.any(seeds & passable):
+        return out
+    rr, cc, shape = _window(pix)
+    grid = np.zeros(shape, dtype=bool)
+    grid[rr[passable], cc[passable]] = True
+    labels, _ = ndimage.label(grid, np.ones((3, 3), dtype=bool))
+    hit = np.unique(labels[rr[seeds & passable], cc[seeds & passable]])
+    hit = hit[hit > 0]
+    out[passable] = np.isin(labels[rr[passable], cc[passable]], hit)
+    return out
 
 
 PART_GAP_PX = 2
@@ -179,7 +200,8 @@ def object_point_mask(points_world: np.ndarray, pixels: np.ndarray, depth_m: np.
     if n == 0:
         return keep
     above = signed_distance(pts, plane_point, plane_normal) > plane_band_m
-    above |= interior_pixels(pixels, edge_px, neighbour_pixels)
+    above |= interior_pixels(pixels, edge_px, neighbour_pixels) & ~_reached_from(
+        ~above & ~interior_pixels(pixels, edge_px, neighbour_pixels), ~above, pixels)
     if np.count_nonzero(keep & above) >= floor:
         keep &= above
     idx = np.flatnonzero(keep)
