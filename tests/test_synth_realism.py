@@ -156,6 +156,50 @@ def test_bleed_onto_a_neighbour_takes_its_pixels() -> None:
     assert np.all(masks[20:80, edge_of_1:] != 1) and np.all(masks[20:80, 20:edge_of_1] == 1)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_shadow_takes_in_background_in_one_direction_and_no_neighbour(seed: int) -> None:
+    """A 30 x 30 px square with a neighbour beside it; every object casts its shadow
+    (probability 1) in one direction for the scene. The square's mask takes in only
+    background pixels, joined to it, reaching the drawn offset + 2 px of growth (within
+    1.5 px) from it, on the side of the drawn direction (the added pixels' centroid lies
+    within 30 deg of it seen from the square's centre). No other event is drawn."""
+    exact = np.zeros((160, 160), dtype=np.int32)
+    exact[65:95, 65:95] = 1
+    exact[65:95, 20:40] = 2
+    cfg = mask_errors.SegmenterErrors(split_probability=0, sliver_probability=0,
+                                      hole_probability=0, bleed_probability=0,
+                                      shadow_probability=1.0)
+    masks, events = mask_errors.apply(exact, np.full(exact.shape, 1.0),
+                                      np.random.default_rng(seed), 3, cfg)
+    event = next(e for e in events if e["id"] == 1)
+    assert {e["kind"] for e in events} == {"shadow"}
+    added = (masks == 1) & (exact != 1)
+    assert added.sum() == event["pixels"] > 0
+    assert np.all(exact[added] == 0)
+    assert np.all(masks[exact == 2] == 2)
+    dist = ndimage.distance_transform_edt(exact != 1)
+    assert dist[added].max() == pytest.approx(event["offset_px"] + 2.0, abs=1.5)
+    labels, _ = ndimage.label(masks == 1)
+    assert len(np.unique(labels[masks == 1])) == 1
+    v, u = np.nonzero(added)
+    angle = np.degrees(np.arctan2(v.mean() - 79.5, u.mean() - 79.5))
+    assert abs((angle - event["direction_deg"] + 180.0) % 360.0 - 180.0) < 30.0
+
+
+def test_no_shadow_by_default_leaves_the_draws_as_before() -> None:
+    """Without shadows (the default) the events and masks are those of the same draws with
+    shadow_probability=0 given explicitly, and no scene option is recorded."""
+    exact = np.zeros((120, 160), dtype=np.int32)
+    exact[30:90, 30:80] = 1
+    exact[40:70, 90:130] = 2
+    a = mask_errors.apply(exact, np.full(exact.shape, 1.0), np.random.default_rng(5), 3)
+    b = mask_errors.apply(exact, np.full(exact.shape, 1.0), np.random.default_rng(5), 3,
+                          mask_errors.SegmenterErrors(shadow_probability=0.0))
+    assert np.array_equal(a[0], b[0]) and a[1] == b[1]
+    assert "mask_shadow" not in SynthOptions().record()
+    assert SynthOptions(mask_shadow=0.5).record()["mask_shadow"] == 0.5
+
+
 def test_split_gives_a_new_id_that_is_still_an_object(tmp_path: Path) -> None:
     exact = np.zeros((120, 160), dtype=np.int32)
     exact[20:100, 30:130] = 4

@@ -8,7 +8,11 @@ Starting from the exact visible segmentation, each error is applied with a proba
   small disconnected piece of its mask where it has one, else a strip along the occluder;
 - ``hole``: a disc inside the mask is labelled 0;
 - ``bleed``: over an arc of its boundary the mask grows by ``width_px`` (Euclidean
-  distance) onto the background (label 0) or onto a neighbour.
+  distance) onto the background (label 0) or onto a neighbour;
+- ``shadow`` (probability 0 by default): the mask takes in the object's shadow on the
+  table, drawn as the mask shifted by ``offset_px`` in one direction for the whole scene
+  (one light) and grown by 2 px, onto background pixels only. Its random draws are made
+  only when the probability is above 0, so the other events are unchanged without it.
 
 Every event is recorded (kind, ids, pixels, width) for gt/. New ids start after the
 largest gt id so that they never collide with one.
@@ -39,6 +43,8 @@ class SegmenterErrors:
     bleed_arc_deg: tuple[float, float] = (90.0, 240.0)
     bleed_onto_neighbour: float = 0.5
     """Chance that a bleed goes onto a touching neighbour (where there is one)."""
+    shadow_probability: float = 0.0
+    shadow_offset_px: tuple[float, float] = (4.0, 12.0)
 
 
 def _angles_deg(shape: tuple[int, int], centre: np.ndarray) -> np.ndarray:
@@ -180,7 +186,35 @@ def apply(exact: np.ndarray, depth_m: np.ndarray, rng: np.random.Generator, firs
             events.append({"kind": "bleed", "id": obj_id, "width_px": width, "onto": onto,
                            "pixels": int(taken.sum()), "arc_deg": arc,
                            "direction_deg": direction, "neighbours": victims})
+    if cfg.shadow_probability > 0 and ids:
+        light_deg = float(rng.uniform(0, 360))
+        for obj_id in ids:
+            if rng.random() >= cfg.shadow_probability:
+                continue
+            offset = float(rng.uniform(*cfg.shadow_offset_px))
+            taken = shadow(masks, obj_id, offset, light_deg)
+            if taken.any():
+                masks[taken] = obj_id
+                events.append({"kind": "shadow", "id": obj_id, "offset_px": offset,
+                               "direction_deg": light_deg, "pixels": int(taken.sum())})
     return masks, events
+
+
+def shadow(masks: np.ndarray, obj_id: int, offset_px: float, direction_deg: float
+           ) -> np.ndarray:
+    """Pixels (H, W bool) of background (label 0) that object ``obj_id``'s mask takes in
+    when its shadow is cast ``offset_px`` pixels towards ``direction_deg`` (image angle,
+    0 = +column, 90 = +row): the mask swept that far in 1 px steps (the shadow starts at
+    the object) and grown by 2 px."""
+    own = masks == obj_id
+    cast = own.copy()
+    steps = max(int(np.ceil(offset_px)), 1)
+    for t in np.linspace(offset_px / steps, offset_px, steps):
+        dv = t * np.sin(np.radians(direction_deg))
+        du = t * np.cos(np.radians(direction_deg))
+        cast |= ndimage.shift(own.astype(np.float64), (dv, du), order=1, mode="constant") > 0.5
+    cast = ndimage.binary_dilation(cast, iterations=2)
+    return cast & ~own & (masks == 0)
 
 
 def keep_usable(masks: np.ndarray, exact: np.ndarray, valid_depth: np.ndarray,

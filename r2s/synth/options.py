@@ -18,7 +18,7 @@ REALSENSE_PRESET: dict[str, str] = {"camera_model": "realsense", "mask_model": "
 REALSENSE_ELEVATION_DEG = (27.0, 50.0)
 """Elevation of ``camera_model=realsense``: 40-63 degrees from looking straight down."""
 REALISM_FIELDS = ("realism", "camera_model", "hfov_deg", "mask_model", "depth_model",
-                  "prior_model", "prior_pose", "depthless")
+                  "prior_model", "prior_pose", "depthless", "mask_shadow")
 
 
 class SynthOptions(BaseModel):
@@ -81,6 +81,12 @@ class SynthOptions(BaseModel):
         "default", description="default: mild prior errors; single_image: proportions off by "
                                "up to 15 % per axis, smoothed, 10-20 mm Chamfer; none: no "
                                "priors.")
+    mask_shadow: float = Field(
+        0.0, ge=0.0, le=1.0, description="With mask_model=segmenter: the chance per object "
+                                         "that its mask takes in its shadow on the table (the "
+                                         "mask shifted 4-12 px in one direction for the whole "
+                                         "scene, onto background pixels; gt/realism/). 0: none, "
+                                         "as before.")
     depthless: int = Field(
         0, ge=0, description="This many visible objects (of at least 1000 px, drawn at "
                              "random) read no depth at all, as transparent, black or "

@@ -101,7 +101,9 @@ def observe(frame: Frame, K: np.ndarray, options: SynthOptions, effects: Effects
 
     masks = exact
     if options.mask_model == "segmenter":
-        masks, events = mask_errors.apply(exact, frame.depth_m, mask_rng, first_new_id=n + 1)
+        cfg = mask_errors.SegmenterErrors(shadow_probability=options.mask_shadow)
+        masks, events = mask_errors.apply(exact, frame.depth_m, mask_rng, first_new_id=n + 1,
+                                          cfg=cfg)
         masks, events = mask_errors.keep_usable(masks, exact, valid, events, MIN_MASK_PIXELS)
         extra = {int(e["new_id"]): int(e["id"]) for e in events if "new_id" in e
                  and (masks == e["new_id"]).any()}
