@@ -162,6 +162,30 @@ def test_a_bleed_as_wide_as_a_shadow_changes_the_completion_little():
             assert _volume_iou(exact, bled) > 0.95
 
 
+def test_a_wide_bleed_does_not_take_a_plates_floor_with_it():
+    """A 160 mm plate whose floor lies 4 mm up (inside the table band) inside a 20 mm rim,
+    seen from 50 degrees, its mask bled onto the table by 50 % of its area: the table
+    points joined to the outline are dropped (at least 95 % of the bled pixels' points),
+    while the floor's, cut off from the outline by the rim, are all kept."""
+    floor = trimesh.creation.cylinder(0.065, 0.004, sections=64)
+    floor.apply_translation([0.0, 0.0, 0.002])
+    rim = trimesh.creation.annulus(0.065, 0.08, 0.02, sections=64)
+    rim.apply_translation([0.0, 0.0, 0.01])
+    camera = _oblique(50.0, -70.0, 0.6, target=(0.0, 0.0, 0.0))
+    objs = [SynthObject(1, trimesh.util.concatenate([floor, rim]), np.eye(4))]
+    _, depth, masks = render_view(objs, K, camera, W, H)
+    depth = depth.astype(np.float64)
+    bled = _bleed(masks, 1, 0.5)
+    pts, pix = backproject(depth, K, camera, bled == 1, return_pixels=True)
+    keep = object_point_mask(pts, pix, depth[pix[:, 0], pix[:, 1]], [0, 0, 0], [0, 0, 1])
+    on_table = masks[pix[:, 0], pix[:, 1]] == 0
+    radius = np.hypot(pts[:, 0], pts[:, 1])
+    on_floor = ~on_table & (radius < 0.06) & (pts[:, 2] < 0.006)
+    assert on_table.sum() > 500 and on_floor.sum() > 500  # sanity of the scene
+    assert keep[on_table].mean() < 0.05
+    assert keep[on_floor].all()
+
+
 def _occluded_scene():
     """A 95 mm tall box in front of a 140 mm tall cylinder that stands 80 mm behind it:
     the camera (35 degrees, from the box's side) sees only the cylinder's top part."""
