@@ -83,9 +83,9 @@ class SynthOptions(BaseModel):
                                "priors.")
     mask_shadow: float = Field(
         0.0, ge=0.0, le=1.0, description="With mask_model=segmenter: the chance per object "
-                                         "that its mask takes in its shadow on the table (the "
-                                         "mask shifted 4-12 px in one direction for the whole "
-                                         "scene, onto background pixels; gt/realism/). 0: none, "
+                                         "that its mask takes in its shadow on the table (swept "
+                                         "4-12 px in one direction for the whole scene, grown "
+                                         "2 px, onto background pixels; gt/realism/). 0: none, "
                                          "as before.")
     depthless: int = Field(
         0, ge=0, description="This many visible objects (of at least 1000 px, drawn at "
