@@ -343,8 +343,9 @@ def _bridge(bottom: np.ndarray, under: np.ndarray, top: np.ndarray, inside: np.n
                     2 * cell)
     if thickness > BRIDGE_MAX_THICKNESS_RATIO * float(np.median(top[free])):
         return bottom
-    bridged = np.where(free, np.maximum(top - thickness, _carrier_floor(under, on, pts, gx, gy,
-                                                                        cell)), bottom)
+    ix, iy = _columns(pts, gx[0, 0], gy[0, 0], *gx.shape, cell)
+    bridged = np.where(free, np.maximum(top - thickness, _carrier_floor(under, on, pts, ix, iy,
+                                                                        gx, gy, cell)), bottom)
     weight = np.where(inside, np.clip(top - bridged, 0.0, None), 0.0)
     com = np.array([np.sum(weight * gx), np.sum(weight * gy)]) / max(float(weight.sum()), 1e-12)
     try:
@@ -353,23 +354,22 @@ def _bridge(bottom: np.ndarray, under: np.ndarray, top: np.ndarray, inside: np.n
         return bottom  # the carried columns are on a line: no area to stand on
     if np.max(hull.equations[:, :2] @ com + hull.equations[:, 2]) > 0.0:
         return bottom
-    ix, iy = _columns(pts, gx[0, 0], gy[0, 0], *gx.shape, cell)
     if np.mean(pts[:, 2] < bridged[ix, iy] - cell) > BRIDGE_MAX_POINTS_BELOW:
         return bottom
     return bridged
 
 
-def _carrier_floor(under: np.ndarray, on: np.ndarray, pts: np.ndarray, gx: np.ndarray,
-                   gy: np.ndarray, cell: float) -> np.ndarray:
+def _carrier_floor(under: np.ndarray, on: np.ndarray, pts: np.ndarray, px: np.ndarray,
+                   py: np.ndarray, gx: np.ndarray, gy: np.ndarray, cell: float) -> np.ndarray:
     """(nx, ny) the lowest a bridged object's underside may hang in each column where it
     overhangs what carries it (outside the convex hull of the carried columns ``on``):
     the top under it in the nearest carried column (``under`` the tops), but a cell below
-    the lowest of its own observed points (``pts``, plane frame) in the column where it
-    has some (what is seen lower than its carrier's top is seen hanging there). Columns
-    over the hull, a gap it spans between carriers, get no floor (-inf)."""
+    the lowest of its own observed points (``pts``, plane frame, in columns ``px``, ``py``)
+    in the column where it has some (what is seen lower than its carrier's top is seen
+    hanging there). Columns over the hull, a gap it spans between carriers, get no floor
+    (-inf)."""
     _, (ix, iy) = ndimage.distance_transform_edt(~on, return_indices=True)
     floor = under[ix, iy]
-    px, py = _columns(pts, gx[0, 0], gy[0, 0], *gx.shape, cell)
     lowest = np.full(gx.shape, np.inf)
     np.minimum.at(lowest, (px, py), pts[:, 2])
     floor = np.minimum(floor, lowest - cell)

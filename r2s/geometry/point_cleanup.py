@@ -200,8 +200,8 @@ def object_point_mask(points_world: np.ndarray, pixels: np.ndarray, depth_m: np.
     if n == 0:
         return keep
     above = signed_distance(pts, plane_point, plane_normal) > plane_band_m
-    above |= interior_pixels(pixels, edge_px, neighbour_pixels) & ~_reached_from(
-        ~above & ~interior_pixels(pixels, edge_px, neighbour_pixels), ~above, pixels)
+    inner = interior_pixels(pixels, edge_px, neighbour_pixels)
+    above |= inner & ~_reached_from(~above & ~inner, ~above, pixels)
     if np.count_nonzero(keep & above) >= floor:
         keep &= above
     idx = np.flatnonzero(keep)

@@ -10,8 +10,8 @@ Starting from the exact visible segmentation, each error is applied with a proba
 - ``bleed``: over an arc of its boundary the mask grows by ``width_px`` (Euclidean
   distance) onto the background (label 0) or onto a neighbour;
 - ``shadow`` (probability 0 by default): the mask takes in the object's shadow on the
-  table, drawn as the mask shifted by ``offset_px`` in one direction for the whole scene
-  (one light) and grown by 2 px, onto background pixels only. Its random draws are made
+  table, drawn as the mask swept ``offset_px`` in one direction for the whole scene (one
+  light) and grown by 2 px, onto background pixels only. Its random draws are made
   only when the probability is above 0, so the other events are unchanged without it.
 
 Every event is recorded (kind, ids, pixels, width) for gt/. New ids start after the
