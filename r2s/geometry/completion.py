@@ -85,6 +85,8 @@ BRIDGE_MAX_POINTS_BELOW = 0.05
 """...and only when nearly all its observed points lie within the bridged solid."""
 EXTEND_FRACTION = 0.0
 EXTEND_MAX_M = 0.05
+HULL_TOLERANCE_M = 1e-9
+"""A grid column on a facet of the carried columns' hull (rounding aside) is over it."""
 
 
 def footprint_sdf(hull_equations: np.ndarray | Sequence[np.ndarray], xy: np.ndarray
@@ -343,15 +345,15 @@ def _bridge(bottom: np.ndarray, under: np.ndarray, top: np.ndarray, inside: np.n
                     2 * cell)
     if thickness > BRIDGE_MAX_THICKNESS_RATIO * float(np.median(top[free])):
         return bottom
-    ix, iy = _columns(pts, gx[0, 0], gy[0, 0], *gx.shape, cell)
-    bridged = np.where(free, np.maximum(top - thickness, _carrier_floor(under, on, pts, ix, iy,
-                                                                        gx, gy, cell)), bottom)
-    weight = np.where(inside, np.clip(top - bridged, 0.0, None), 0.0)
-    com = np.array([np.sum(weight * gx), np.sum(weight * gy)]) / max(float(weight.sum()), 1e-12)
     try:
         hull = ConvexHull(np.c_[gx[on], gy[on]])
     except QhullError:
         return bottom  # the carried columns are on a line: no area to stand on
+    ix, iy = _columns(pts, gx[0, 0], gy[0, 0], *gx.shape, cell)
+    floor = _carrier_floor(under, on, hull.equations, pts, ix, iy, gx, gy, cell)
+    bridged = np.where(free, np.maximum(top - thickness, floor), bottom)
+    weight = np.where(inside, np.clip(top - bridged, 0.0, None), 0.0)
+    com = np.array([np.sum(weight * gx), np.sum(weight * gy)]) / max(float(weight.sum()), 1e-12)
     if np.max(hull.equations[:, :2] @ com + hull.equations[:, 2]) > 0.0:
         return bottom
     if np.mean(pts[:, 2] < bridged[ix, iy] - cell) > BRIDGE_MAX_POINTS_BELOW:
@@ -359,25 +361,25 @@ def _bridge(bottom: np.ndarray, under: np.ndarray, top: np.ndarray, inside: np.n
     return bridged
 
 
-def _carrier_floor(under: np.ndarray, on: np.ndarray, pts: np.ndarray, px: np.ndarray,
-                   py: np.ndarray, gx: np.ndarray, gy: np.ndarray, cell: float) -> np.ndarray:
+def _carrier_floor(under: np.ndarray, on: np.ndarray, hull_equations: np.ndarray,
+                   pts: np.ndarray, px: np.ndarray, py: np.ndarray, gx: np.ndarray,
+                   gy: np.ndarray, cell: float) -> np.ndarray:
     """(nx, ny) the lowest a bridged object's underside may hang in each column where it
-    overhangs what carries it (outside the convex hull of the carried columns ``on``):
-    the top under it in the nearest carried column (``under`` the tops), but a cell below
-    the lowest of its own observed points (``pts``, plane frame, in columns ``px``, ``py``)
-    in the column where it has some (what is seen lower than its carrier's top is seen
-    hanging there). Columns over the hull, a gap it spans between carriers, get no floor
-    (-inf)."""
+    overhangs what carries it (outside ``hull_equations``, (F, 3) the convex hull of the
+    carried columns ``on``, plane frame): the top under it in the nearest carried column
+    (``under`` the tops), but a cell below the lowest of its own observed points (``pts``,
+    plane frame, in columns ``px``, ``py``) in the column where it has some (what is seen
+    lower than its carrier's top is seen hanging there). Columns over the hull, a gap it
+    spans between carriers, get no floor (-inf)."""
     _, (ix, iy) = ndimage.distance_transform_edt(~on, return_indices=True)
     floor = under[ix, iy]
     lowest = np.full(gx.shape, np.inf)
     np.minimum.at(lowest, (px, py), pts[:, 2])
     floor = np.minimum(floor, lowest - cell)
-    try:
-        span = Delaunay(np.c_[gx[on], gy[on]]).find_simplex(np.c_[gx.ravel(), gy.ravel()]) >= 0
-    except QhullError:
-        return floor
-    return np.where(span.reshape(gx.shape), -np.inf, floor)
+    over = (hull_equations[:, 0] * gx[..., None] + hull_equations[:, 1] * gy[..., None]
+            + hull_equations[:, 2])
+    span = np.all(over <= HULL_TOLERANCE_M, axis=-1)
+    return np.where(span, -np.inf, floor)
 
 
 def drop_isolated(points: np.ndarray, k: int = 8, factor: float = 4.0) -> np.ndarray:
