@@ -9,7 +9,8 @@ from scipy import ndimage
 
 from helpers_init import SynthObject, pose, render_view, rotation
 from r2s.geometry.camera import backproject, intrinsics, look_at
-from r2s.geometry.completion import complete_from_points, footprint_sdf
+from r2s.geometry.completion import (RELAXED_BRIDGE, complete_from_points,
+                                     footprint_sdf)
 from r2s.geometry.raycast import raycast_view
 
 W, H = 160, 120
@@ -302,6 +303,26 @@ def test_what_overhangs_the_block_it_rests_on_does_not_hang_below_the_blocks_top
     done = complete_from_points(np.r_[on, out], [0, 0, 0], [0, 0, 1], under_meshes_world=[block])
     assert _lowest_at(done, -0.04) == pytest.approx(0.208, abs=0.004)
     assert _lowest_at(done, 0.04) == pytest.approx(0.208, abs=0.004)
+
+
+def test_the_looser_bridge_guards_span_a_gap_the_strict_ones_leave_to_the_table():
+    """The board (top seen at 100 mm) across two boxes only 40 mm high: it would be 60 mm
+    thick, 0.6 of its height over the gap. The strict guards (at most 0.5) take that for
+    a tall thing beside low ones, and its middle reaches the table; the looser ones
+    (0.7), which make init's second completion, span the gap with its underside at the
+    boxes' top (within a cell, 4 mm). ``bridged`` says which happened."""
+    rng = np.random.default_rng(6)
+    n = 6000
+    board = np.c_[rng.uniform(-0.1, 0.1, n), rng.uniform(-0.03, 0.03, n), np.full(n, 0.10)]
+    boxes = [trimesh.creation.box((0.06, 0.08, 0.04)).apply_translation([x, 0.0, 0.02])
+             for x in (-0.07, 0.07)]
+    strict = complete_from_points(board, [0, 0, 0], [0, 0, 1], under_meshes_world=boxes)
+    loose = complete_from_points(board, [0, 0, 0], [0, 0, 1], under_meshes_world=boxes,
+                                 bridge_guards=RELAXED_BRIDGE)
+    assert not strict.bridged and loose.bridged
+    assert _lowest_at(strict, 0.0) == pytest.approx(0.0, abs=0.004)
+    assert _lowest_at(loose, 0.0) == pytest.approx(0.04, abs=0.004)
+    assert _lowest_at(loose, -0.07) == pytest.approx(0.04, abs=0.004)
 
 
 def _lowest_at(done, x: float) -> float:

@@ -30,9 +30,10 @@ def _pose(x: float, z: float) -> list:
     return p.tolist()
 
 
-def _scene(root: Path) -> Path:
-    """init/ with the floating ball prior (id 1) and a resting 80 mm box beside it (id 2,
-    completed); init/alternates/ with the cube completion of id 1; init marked done."""
+def _scene(root: Path, source: str = "prior", alternate: dict | None = None) -> Path:
+    """init/ with the floating ball prior (id 1; ``source``) and a resting 80 mm box beside
+    it (id 2, completed); init/alternates/ with the cube completion of id 1 (its extra
+    keys ``alternate``); init marked done."""
     d = root / "init"
     (d / "meshes").mkdir(parents=True)
     save_mesh(trimesh.creation.icosphere(subdivisions=3, radius=BALL_RADIUS_M),
@@ -40,7 +41,7 @@ def _scene(root: Path) -> Path:
     save_mesh(trimesh.creation.box([0.08] * 3), d / "meshes" / "2.glb")
     support = SupportPlane(point=[0, 0, 0], normal=[0, 0, 1])
     write_state(d, SceneState(stage="init", support=support, objects=[
-        ObjectState(id=1, label="ball", mesh="meshes/1.glb", source="prior",
+        ObjectState(id=1, label="ball", mesh="meshes/1.glb", source=source,
                     world_from_object=_pose(0.0, BALL_RADIUS_M + LIFT_M)),
         ObjectState(id=2, label="box", mesh="meshes/2.glb", source="completed",
                     world_from_object=_pose(0.2, 0.04))]))
@@ -49,7 +50,7 @@ def _scene(root: Path) -> Path:
     save_mesh(trimesh.creation.box([CUBE_EDGE_M] * 3), alt / "meshes" / "1.glb")
     write_state(alt, SceneState(stage="init", support=support, objects=[
         ObjectState(id=1, label="ball", mesh="meshes/1.glb", source="completed",
-                    world_from_object=_pose(0.0, CUBE_EDGE_M / 2))]))
+                    world_from_object=_pose(0.0, CUBE_EDGE_M / 2), **(alternate or {}))]))
     m = load_manifest(root / "manifest.json")
     m.stages["init"] = StageRecord(status="done")
     save_manifest(root / "manifest.json", m)
@@ -70,10 +71,30 @@ def test_a_prior_that_rests_only_far_away_gives_way_to_its_completion(tmp_path: 
     assert state.object(2).source == "completed" and not getattr(state.object(2),
                                                                  SEEN_POSE_KEY, None)
     log = json.loads((root / "physopt" / "log.json").read_text())
-    assert log["swap_to_completion"] == {"ids": [1], "flagged_before": [1],
+    assert log["swap_to_completion"] == {"ids": [1], "shapes": {"1": "completion"},
+                                         "flagged_before": [1],
                                          "flagged_after": [], "moving_before": [],
                                          "moving_after": [], "pooled_iou_before": None,
                                          "pooled_iou_after": None, "kept": True}
+
+
+def test_a_completed_object_gives_way_to_its_bridged_completion_only(tmp_path: Path):
+    """A completed object (not a prior) that rests only far from where it was seen is
+    swapped for init's second completion when that is a completion lying across others
+    (``alternate: "bridged completion"``, r2s/stages/init.py); any other alternative of a
+    completed object is not a candidate, and the object stays flagged."""
+    root = _scene(tmp_path / "bridged", source="completed",
+                  alternate={"alternate": "bridged completion"})
+    result = run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False))
+    assert result.summary["flagged_objects"] == 0
+    obj = read_state(root / "physopt").object(1)
+    assert np.linalg.norm(obj.pose[:3, 3] - [0.0, 0.0, CUBE_EDGE_M / 2]) < 0.002
+    log = json.loads((root / "physopt" / "log.json").read_text())
+    assert log["swap_to_completion"]["shapes"] == {"1": "bridged completion"}
+    plain = _scene(tmp_path / "plain", source="completed")
+    result = run_stage(PHYSOPT, plain, PhysOptions(use_diffsim=False))
+    assert result.summary["flagged_objects"] == 1
+    assert "swap_to_completion" not in json.loads((plain / "physopt" / "log.json").read_text())
 
 
 def test_without_the_swap_the_prior_falls_and_is_flagged(tmp_path: Path):

@@ -68,6 +68,8 @@ class CompletedShape:
     world_from_object: np.ndarray
     bottom_m: float
     carved_fraction: float = 0.0
+    bridged: bool = False
+    """Whether it lies across others (:func:`_bridge` raised its free columns)."""
 
 
 MIN_PIECE_FRACTION = 0.1
@@ -83,6 +85,32 @@ over the table in the free columns (a thin thing across others, not a tall one b
 low one)."""
 BRIDGE_MAX_POINTS_BELOW = 0.05
 """...and only when nearly all its observed points lie within the bridged solid."""
+
+
+@dataclass(frozen=True)
+class BridgeGuards:
+    """When an object found lying across others is bridged (:func:`_bridge`).
+
+    max_thickness_ratio : its thickness where it rests over its median height in the free
+        columns, at most.
+    com_margin_cells : how far (grid cells) its centre of mass may lie outside the hull of
+        the carried columns.
+    """
+
+    max_thickness_ratio: float = BRIDGE_MAX_THICKNESS_RATIO
+    com_margin_cells: float = 0.0
+
+
+STRICT_BRIDGE = BridgeGuards()
+"""The guards of the completion init keeps."""
+
+RELAXED_BRIDGE = BridgeGuards(max_thickness_ratio=0.7, com_margin_cells=1.0)
+"""Looser guards, for the second completion physopt may swap in where the first cannot
+rest near where it was seen (r2s/stages/init.py, ``init/alternates/``). A clamp lying on
+another clamp and a cup in the realistic benchmark's scene_05 is 0.61 of its height thick
+where it rests, and its centre of mass lies 0.7 mm (a quarter of a cell) outside what
+carries it; as the first completion these guards took a cup leaning on a banana (scene_02)
+off the table, so they only make the alternative."""
 EXTEND_FRACTION = 0.0
 EXTEND_MAX_M = 0.05
 HULL_TOLERANCE_M = 1e-9
@@ -306,7 +334,8 @@ def _tops_below(meshes_world: Sequence[trimesh.Trimesh], plane_from_world: np.nd
 
 
 def _bridge(bottom: np.ndarray, under: np.ndarray, top: np.ndarray, inside: np.ndarray,
-            gx: np.ndarray, gy: np.ndarray, cell: float, pts: np.ndarray) -> np.ndarray:
+            gx: np.ndarray, gy: np.ndarray, cell: float, pts: np.ndarray,
+            guards: BridgeGuards = STRICT_BRIDGE) -> np.ndarray:
     """(nx, ny) ``bottom`` raised, for an object lying across others, to its thickness
     below its top in the columns where nothing carries it.
 
@@ -325,11 +354,12 @@ def _bridge(bottom: np.ndarray, under: np.ndarray, top: np.ndarray, inside: np.n
     on the edge and tip; a support plane fitted to points under the object, often a
     neighbour's side, does not shape them), when
 
-    - that thickness is at most ``BRIDGE_MAX_THICKNESS_RATIO`` of the object's median
+    - that thickness is at most ``guards.max_thickness_ratio`` of the object's median
       height in the free columns (a thin thing across others, not a tall one beside a
       low one), and
     - the bridged solid's centre of mass (column volumes, uniform density) lies over the
-      convex hull of the carried columns: what carries it can hold it. A board with one
+      convex hull of the carried columns, or within ``guards.com_margin_cells`` of it:
+      what carries it can hold it. A board with one
       end on a box and its top level over the table beyond keeps reaching the table;
     - at most ``BRIDGE_MAX_POINTS_BELOW`` of the object's own observed points lie more
       than a cell below the bridged underside of their column: a fruit whose side is seen
@@ -343,7 +373,7 @@ def _bridge(bottom: np.ndarray, under: np.ndarray, top: np.ndarray, inside: np.n
         return bottom
     thickness = max(float(np.percentile(top[on] - bottom[on], BRIDGE_THICKNESS_PERCENTILE)),
                     2 * cell)
-    if thickness > BRIDGE_MAX_THICKNESS_RATIO * float(np.median(top[free])):
+    if thickness > guards.max_thickness_ratio * float(np.median(top[free])):
         return bottom
     try:
         hull = ConvexHull(np.c_[gx[on], gy[on]])
@@ -354,7 +384,7 @@ def _bridge(bottom: np.ndarray, under: np.ndarray, top: np.ndarray, inside: np.n
     bridged = np.where(free, np.maximum(top - thickness, floor), bottom)
     weight = np.where(inside, np.clip(top - bridged, 0.0, None), 0.0)
     com = np.array([np.sum(weight * gx), np.sum(weight * gy)]) / max(float(weight.sum()), 1e-12)
-    if np.max(hull.equations[:, :2] @ com + hull.equations[:, 2]) > 0.0:
+    if np.max(hull.equations[:, :2] @ com + hull.equations[:, 2]) > guards.com_margin_cells * cell:
         return bottom
     if np.mean(pts[:, 2] < bridged[ix, iy] - cell) > BRIDGE_MAX_POINTS_BELOW:
         return bottom
@@ -404,7 +434,8 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
                          extend_max_m: float = EXTEND_MAX_M,
                          exclude: Callable[[np.ndarray], np.ndarray] | None = None,
                          under_meshes_world: Sequence[trimesh.Trimesh] = (),
-                         point_parts: np.ndarray | None = None) -> CompletedShape:
+                         point_parts: np.ndarray | None = None,
+                         bridge_guards: BridgeGuards = STRICT_BRIDGE) -> CompletedShape:
     """Complete a watertight mesh from one partial view of an object on a plane.
 
     Parameters
@@ -436,12 +467,14 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
         parts by an occluder, :func:`r2s.geometry.point_cleanup.part_labels`), or None.
         With two parts or more the footprint may be the union of the parts' own hulls
         instead of one hull across the occluder between them (:func:`_footprint`).
+    bridge_guards : when an object over ``under_meshes_world`` is bridged (:func:`_bridge`).
 
     Returns
     -------
     :class:`CompletedShape`; ``ValueError`` for degenerate input (collinear points).
     """
     pts_w = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+    bridged = False
     keep = np.all(np.isfinite(pts_w), axis=1)
     if outlier_factor > 0 and keep.sum() > 20:
         keep[keep] = drop_isolated(pts_w[keep], factor=outlier_factor)
@@ -499,7 +532,9 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
     if len(under_meshes_world):
         under = _tops_below(under_meshes_world, plane_from_world, gx, gy, top - 2 * cell)
         bottom = np.maximum(bottom, under)
-        bottom = _bridge(bottom, under, top, sdf <= 0, gx, gy, cell, pts)
+        raised = _bridge(bottom, under, top, sdf <= 0, gx, gy, cell, pts, bridge_guards)
+        bridged = raised is not bottom
+        bottom = raised
     # keep at least two cells of material in every column
     top = np.maximum(top, bottom + 2 * cell)
     inside_xy = -sdf
@@ -534,7 +569,8 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
     plane_from_object = np.eye(4)
     plane_from_object[:3, 3] = centre
     return CompletedShape(mesh=mesh, world_from_object=world_from_pl @ plane_from_object,
-                          bottom_m=float(centre[2]), carved_fraction=carved_fraction)
+                          bottom_m=float(centre[2]), carved_fraction=carved_fraction,
+                          bridged=bridged)
 
 
 def mesh_field(field: np.ndarray, origin: np.ndarray, cell: float

@@ -60,7 +60,8 @@ from r2s.geometry.camera import backproject, instance_points, transform_points
 from r2s.geometry.carving import carve_view
 from r2s.geometry.colors import color_mesh_from_image, has_appearance
 from r2s.geometry.border_extension import border_cap_points
-from r2s.geometry.completion import complete_from_points
+from r2s.geometry.completion import (RELAXED_BRIDGE, STRICT_BRIDGE, BridgeGuards,
+                                      CompletedShape, complete_from_points)
 from r2s.geometry.hidden_overlap import lift_onto_plane, sunk_too_far, yield_hidden_overlaps
 from r2s.geometry.hidden_partition import Claimant, exclusion, overlaps
 from r2s.geometry.free_space import view_constraint
@@ -289,6 +290,12 @@ class Options(StageOptions):
                           "space others own: in every column where another object's top "
                           "lies below its top, its base rests on that object instead of "
                           "reaching down to the table (see geometry/completion.py).")
+    completion_bridge_alternative: bool = Field(
+        True, description="When a completed object lying across others is not bridged "
+                           "only because of the strict guards, also complete it with "
+                           "looser ones (geometry/completion.py RELAXED_BRIDGE) into "
+                           "init/alternates/, for physopt to swap in where the first "
+                           "completion cannot rest near where it was seen.")
     completion_extend_fraction: float = Field(
         0.0, ge=0, description="Sweep a completed object's footprint towards the camera "
                                "into space hidden by nearer things, by up to this fraction "
@@ -587,10 +594,14 @@ def _choose_prior_or_completion(scene: InputScene, observed: dict, shapes: dict[
 
 
 def _save_alternates(out: Path, alternates: dict[int, tuple], scene: InputScene,
-                     plane: PlaneFit) -> None:
-    """``init/alternates/``: the completion of every prior kept (``meshes/<id>.glb``,
+                     plane: PlaneFit, bridged: Optional[dict[int, tuple]] = None) -> None:
+    """``init/alternates/``: the completion of every prior kept and the loosely bridged
+    completion of the completed objects that have one (``bridged``; ``meshes/<id>.glb``,
     object frame, and ``state.json`` with its pose), for physopt to swap in where the
-    prior can rest only far from where it was seen."""
+    object as init keeps it can rest only far from where it was seen. The second kind
+    carries ``alternate: "bridged completion"``."""
+    loose = set(bridged or {})
+    alternates = {**alternates, **(bridged or {})}
     if not alternates:
         return
     (out / INIT_ALTERNATES_DIR / "meshes").mkdir(parents=True, exist_ok=True)
@@ -598,9 +609,10 @@ def _save_alternates(out: Path, alternates: dict[int, tuple], scene: InputScene,
     objects = []
     for i, (mesh, pose) in sorted(alternates.items()):
         save_mesh(mesh, out / INIT_ALTERNATES_DIR / "meshes" / f"{i}.glb")
+        extra = {"alternate": "bridged completion"} if i in loose else {}
         objects.append(ObjectState(id=i, label=labels[i], mesh=f"meshes/{i}.glb",
                                    world_from_object=np.asarray(pose).tolist(),
-                                   source="completed"))
+                                   source="completed", **extra))
     write_state(out / INIT_ALTERNATES_DIR, SceneState(
         stage="init", gravity=list(DEFAULT_GRAVITY), support=_support_plane(plane),
         objects=objects))
@@ -623,11 +635,22 @@ def _rest_alone(mesh: trimesh.Trimesh, world_from_object: np.ndarray, plane: Pla
 
 def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneFit,
               o: Options, exclude: Optional[Callable[[np.ndarray], np.ndarray]] = None,
-              under: Sequence[trimesh.Trimesh] = ()) -> tuple[trimesh.Trimesh, np.ndarray]:
+              under: Sequence[trimesh.Trimesh] = (),
+              bridge_guards: BridgeGuards = STRICT_BRIDGE) -> tuple[trimesh.Trimesh, np.ndarray]:
     """A closed, coloured mesh completed from the observation (object frame) and its pose.
     ``observed``: id -> (points, pixels) of every object; the others' points are what the
     object may stand on; ``under``: other objects' meshes (world frame) it may lie across
-    (its base rests on their tops, column by column)."""
+    (its base rests on their tops, column by column, when ``bridge_guards`` allow).
+    :func:`_complete_shape` also says whether it was bridged."""
+    shape = _complete_shape(scene, spec, observed, plane, o, exclude, under, bridge_guards)
+    return shape.mesh, shape.world_from_object
+
+
+def _complete_shape(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneFit,
+                    o: Options, exclude: Optional[Callable[[np.ndarray], np.ndarray]] = None,
+                    under: Sequence[trimesh.Trimesh] = (),
+                    bridge_guards: BridgeGuards = STRICT_BRIDGE) -> CompletedShape:
+    """:func:`_complete`'s :class:`r2s.geometry.completion.CompletedShape`."""
     pts, pix = observed[spec.id]
     others = [observed[j][0] for j in sorted(observed) if j != spec.id] or None
     cam = scene.camera
@@ -675,20 +698,25 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
                                      extend_fraction=o.completion_extend_fraction,
                                      exclude=exclude,
                                      under_meshes_world=under if o.completion_rest_on_others
-                                     else (), point_parts=parts)
+                                     else (), point_parts=parts,
+                                     bridge_guards=bridge_guards)
     except ValueError as exc:
         raise StageError(f"object {spec.id}: completion failed ({exc})") from None
-    return shape.mesh, shape.world_from_object
+    return shape
 
 
 def _final_shapes(ctx: StageContext, scene: InputScene, observed: dict,
-                  shapes: dict[int, tuple], plane: PlaneFit, o: Options) -> dict:
+                  shapes: dict[int, tuple], plane: PlaneFit, o: Options
+                  ) -> tuple[dict[int, dict], dict[int, tuple]]:
     """In place in ``shapes``, the last changes once every object has its shape: hidden
-    space shared by completed objects, hidden overlaps of priors (their records are
-    returned, by id), then the completed outlines snapped onto the masks."""
+    space shared by completed objects, hidden overlaps of priors, then the completed
+    outlines snapped onto the masks. Returns the priors' hidden-overlap records (by id)
+    and id -> (mesh, world_from_object) of the completed objects' second completions
+    (:func:`_partition_hidden`), snapped the same way."""
+    bridged = {}
     if o.completion_partition_hidden:
         ctx.progress("hidden space shared by completed objects", 0.9)
-        _partition_hidden(scene, observed, shapes, plane, o)
+        bridged = _partition_hidden(scene, observed, shapes, plane, o)
     yielded = {}
     if o.prior_yield_hidden_overlap or o.prior_lift_below_table:  # only where priors overlap
         ctx.progress("hidden overlaps of priors", 0.92)
@@ -696,16 +724,21 @@ def _final_shapes(ctx: StageContext, scene: InputScene, observed: dict,
     if o.completion_snap_outline_px > 0:
         ctx.progress("outlines of completed objects", 0.93)
         _snap_completions(scene, shapes, plane, o.completion_snap_outline_px)
-    return yielded
+        for i, (mesh, pose) in list(bridged.items()):
+            alone = {**shapes, i: (mesh, pose, None)}
+            _snap_completions(scene, alone, plane, o.completion_snap_outline_px, only=i)
+            bridged[i] = alone[i][:2]
+    return yielded, bridged
 
 
 def _snap_completions(scene: InputScene, shapes: dict[int, tuple], plane: PlaneFit,
-                      max_shift_px: float) -> None:
+                      max_shift_px: float, only: Optional[int] = None) -> None:
     """In place in ``shapes``: every completed object's mesh with its outer silhouette
     moved onto its mask's outline (:func:`r2s.geometry.silhouette_snap.snap_outline`),
     keeping out of every other object (in their final shapes as they are snapped). The
     last step before saving, so that no decision above (the partition of hidden space,
-    resting on others, the prior-or-completion choice) depends on it."""
+    resting on others, the prior-or-completion choice) depends on it. ``only``: snap that
+    object alone, keeping out of the others as they stand."""
     cam = scene.camera
     posed = {}
     for obj_id, (mesh, world_from_object, _) in shapes.items():
@@ -713,7 +746,7 @@ def _snap_completions(scene: InputScene, shapes: dict[int, tuple], plane: PlaneF
             posed[obj_id] = trimesh.Trimesh(transform_points(world_from_object, mesh.vertices),
                                             mesh.faces, process=False)
     for obj_id, (mesh, world_from_object, reg) in shapes.items():
-        if reg is not None or mesh is None:
+        if reg is not None or mesh is None or (only is not None and obj_id != only):
             continue
         snapped, _ = snap_outline(posed[obj_id], scene.masks == obj_id, scene.masks,
                                   scene.depth_m, cam.K, cam.world_from_camera, plane.normal,
@@ -755,18 +788,24 @@ def _save_object(spec: ObjectSpec, shape: tuple, pts: np.ndarray, out: Path, o: 
 
 
 def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple],
-                      plane: PlaneFit, o: Options) -> None:
+                      plane: PlaneFit, o: Options) -> dict[int, tuple]:
     """Complete again, in place in ``shapes``, every completed object whose first
     completion overlaps another object, without the hidden space that the other owns
     (:mod:`r2s.geometry.hidden_partition`); the overlaps are judged on the first
-    completions, so the split does not depend on the order of the objects."""
+    completions, so the split does not depend on the order of the objects.
+
+    An object completed again may lie across the others (its base on their tops). Where
+    the strict guards refuse that and the looser ones
+    (:data:`r2s.geometry.completion.RELAXED_BRIDGE`, with ``completion_bridge_alternative``)
+    accept it, the loosely bridged completion is returned, id -> (mesh, world_from_object):
+    physopt swaps it in only where the first cannot rest near where it was seen."""
     posed = {}
     for obj_id, (mesh, world_from_object, _) in shapes.items():
         m = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
         posed[obj_id] = m.apply_transform(world_from_object)
     claimant = {j: Claimant(posed[j], observed[j][0], shapes[j][2] is not None)
                 for j in shapes}
-    redo = {}
+    redo, bridged = {}, {}
     for spec in scene.objects:
         if shapes[spec.id][2] is not None:
             continue  # a registered prior keeps its shape
@@ -777,9 +816,15 @@ def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple
         if spec.id not in redo:
             continue
         under = [posed[j] for j in shapes if j != spec.id]
-        mesh, world_from_object = _complete(scene, spec, observed, plane, o,
-                                            exclude=redo[spec.id], under=under)
-        shapes[spec.id] = (mesh, world_from_object, None)
+        shape = _complete_shape(scene, spec, observed, plane, o, exclude=redo[spec.id],
+                                under=under)
+        shapes[spec.id] = (shape.mesh, shape.world_from_object, None)
+        if o.completion_bridge_alternative and under and not shape.bridged:
+            loose = _complete_shape(scene, spec, observed, plane, o, exclude=redo[spec.id],
+                                    under=under, bridge_guards=RELAXED_BRIDGE)
+            if loose.bridged:
+                bridged[spec.id] = (loose.mesh, loose.world_from_object)
+    return bridged
 
 
 def _yield_prior_overlaps(observed: dict, shapes: dict[int, tuple], plane: PlaneFit,
@@ -956,8 +1001,8 @@ def run(ctx: StageContext) -> dict:
     _fallback_to_completion(scene, observed, shapes, ious, plane, o, flags)
     ctx.progress("prior or completion", 0.85)
     choices, alternates = _choose_prior_or_completion(scene, observed, shapes, plane, o, flags)
-    _save_alternates(out, alternates, scene, plane)
-    yielded = _final_shapes(ctx, scene, observed, shapes, plane, o)
+    yielded, bridged = _final_shapes(ctx, scene, observed, shapes, plane, o)
+    _save_alternates(out, alternates, scene, plane, bridged)
     objects: list[ObjectState] = []
     posed: list[trimesh.Trimesh] = []
     rmses: list[float] = []

@@ -89,11 +89,13 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
                                                  "docs/realistic.md measured 5 on the seed "
                                                  "demo).")
     swap_to_completion: bool = Field(
-        True, description="Where a prior object can be made to rest only beyond the "
-                          "observation tolerance, solve the scene again with init's completion "
-                          "of it in its place (init/alternates/) and keep that solution if it "
-                          "leaves no more objects flagged or still moving and its silhouette "
-                          "IoU is higher by >= 0.01 (physopt/swap_choice.py).")
+        True, description="Where a prior object, or a completed one with a second "
+                          "completion lying across others, can be made to rest only beyond "
+                          "the observation tolerance, solve the scene again with init's "
+                          "alternative shape of it in its place (init/alternates/) and keep "
+                          "that solution if it leaves no more objects flagged or still moving "
+                          "and its silhouette IoU is higher by >= 0.01 "
+                          "(physopt/swap_choice.py).")
 
 
 def _source(paths: ScenePaths, options: Options, manifest: Manifest) -> str:
@@ -171,8 +173,10 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
                             order: list[int], parents: dict, seen: dict[int, np.ndarray],
                             convex: ConvexParams, solved: Solved, log: dict
                             ) -> Optional[tuple]:
-    """Solve again with init's completion (``init/alternates/``) in place of every flagged
-    prior object (``seen``: id -> where each object was seen, for the first solve);
+    """Solve again with init's alternative shape (``init/alternates/``) in place of every
+    flagged object that has one: a prior's completion, or a completed object's completion
+    lying across others (``alternate: "bridged completion"``; ``seen``: id -> where each
+    object was seen, for the first solve);
     (state, pieces, solved, log, mesh files) of that solution when
     :func:`r2s.physopt.swap_choice.prefer_swapped` prefers it, else None (``log`` then
     records the attempt). A swapped object is seen where its completion was (its state
@@ -183,7 +187,8 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
         return None
     alternates = corrected_state(read_state(alt_dir), ctx.manifest.model)
     swap = {o.id: o for o in alternates.objects
-            if o.id in solved.flags and o.id in meshes and state.object(o.id).source == "prior"}
+            if o.id in solved.flags and o.id in meshes
+            and (state.object(o.id).source == "prior" or _bridged_alternate(o))}
     if not swap:
         return None
     ctx.progress(f"objects {sorted(swap)}: solving again with their completions", 0.6)
@@ -206,7 +211,10 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
     after = SolutionSummary(len(solved2.flags), len(opt.moving(solved2.drift)),
                             _pooled_iou(view, meshes2, solved2.params))
     keep = prefer_swapped(before, after)
-    record = {"ids": sorted(swap), "flagged_before": sorted(solved.flags),
+    record = {"ids": sorted(swap),
+              "shapes": {str(i): ("bridged completion" if _bridged_alternate(o)
+                                  else "completion") for i, o in sorted(swap.items())},
+              "flagged_before": sorted(solved.flags),
               "flagged_after": sorted(solved2.flags),
               "moving_before": sorted(opt.moving(solved.drift)),
               "moving_after": sorted(opt.moving(solved2.drift)),
@@ -219,6 +227,12 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
     files = {o.id: (alt_dir / o.mesh if o.id in swap else paths.stage_dir(src) / o.mesh)
              for o in state2.objects}
     return state2, pieces2, solved2, log2, files
+
+
+def _bridged_alternate(o: ObjectState) -> bool:
+    """Whether init's alternative ``o`` is a completed object's second completion, lying
+    across others (r2s/stages/init.py ``_partition_hidden``)."""
+    return getattr(o, "alternate", None) == "bridged completion"
 
 
 def _pooled_iou(view: Optional[InputScene], meshes: dict, params: dict) -> Optional[float]:
