@@ -219,3 +219,24 @@ def test_an_object_that_lost_most_of_its_mask_since_init_is_flagged():
     assert blocks[3]["iou"] == pytest.approx(0.25, abs=1e-9)
     assert blocks[3]["iou_seen"] == pytest.approx(0.25, abs=1e-9)
     assert not blocks[3]["flagged"]
+
+
+def test_ucd_split_at_the_tables_level_separates_what_the_mask_took_in():
+    """A 40 mm box on the table (z = 0) is seen on its top face (exact points) and its mask
+    also takes in 25 table points 0.2 m behind it, at z = 0.001: UCD over all points is
+    the mean with those 0.2 m, the split leaves them out (UCD ~ 0) and says their share."""
+    from r2s.metrics.observation import _ucd_above_support
+
+    box = trimesh.creation.box(extents=[0.04, 0.04, 0.04]).apply_translation([0.0, 0.0, 0.02])
+    rng = np.random.default_rng(1)
+    top = np.c_[rng.uniform(-0.02, 0.02, 75), rng.uniform(-0.02, 0.02, 75), np.full(75, 0.04)]
+    table = np.c_[np.full(25, 0.22), rng.uniform(-0.02, 0.02, 25), np.full(25, 0.001)]
+    pts = np.r_[top, table]
+    plane = (np.zeros(3), np.array([0.0, 0.0, 2.0]))  # the normal need not be unit
+    above_mm, share = _ucd_above_support(pts, box, plane)
+    assert share == pytest.approx(0.25)
+    assert above_mm < 1e-3
+    all_mm = 1000.0 * unilateral_chamfer_m(pts, box)
+    assert all_mm == pytest.approx(0.25 * 200.0, abs=0.5)  # each table point 0.2 m off the x = 0.02 face
+    assert _ucd_above_support(pts, box, None) == (None, None)
+    assert _ucd_above_support(table, box, plane) == (None, 1.0)

@@ -4,7 +4,11 @@ Measured for any scene with an input view, with or without ``gt/``:
 
 * **UCD** (unilateral Chamfer distance, mm): mean distance from the observed points of an
   object (its mask pixels with valid depth, back-projected with the camera) to its
-  world-frame visual mesh;
+  world-frame visual mesh; given the support plane, also the same mean over the points
+  more than ``SUPPORT_LEVEL_M`` above it, and the share of points at or below that level.
+  A mask that takes in the table around or behind its object (bleed, a shadow) counts
+  those table points at their distance, which at a low camera can be 0.1-0.3 m behind
+  the object: the split tells the mask's share of a high UCD from the shape's;
 * **silhouette IoU**: the z-buffered render of all objects at once (so an object hidden
   behind another in the reconstruction loses those pixels, as it did in the image) against
   the input masks, per object and pooled over all object pixels
@@ -38,6 +42,9 @@ FREE_SPACE_BAND_PX = 2.0
 """Pixels within this distance of the object's own mask never count as violations."""
 FREE_SPACE_MARGIN_M = 0.015
 """A rendered surface must be at least this far in front of the observed depth."""
+SUPPORT_LEVEL_M = 0.006
+"""An observed point at most this high above the support plane is at the table's level
+(the band r2s/geometry/point_cleanup.py drops from completions)."""
 LARGE_MASK_PX = 1000
 """The worst-object IoU of a scene is taken over objects with at least this many mask px."""
 SEEN_MOVE_M = 0.002
@@ -180,6 +187,12 @@ class ObjectObservation:
     missing: bool = False
     """True for an instance of the masks that the reconstruction has no object for: it
     counts as IoU 0 in the pooled and the worst IoU (nothing was rendered there)."""
+    ucd_above_support_mm: Optional[float] = None
+    """UCD over the observed points more than ``SUPPORT_LEVEL_M`` above the support plane
+    (None without a plane or without such points)."""
+    support_level_share: Optional[float] = None
+    """Share of the observed points at most ``SUPPORT_LEVEL_M`` above the support plane
+    (None without a plane or points): the table the mask took in."""
 
 
 @dataclass
@@ -211,6 +224,7 @@ class SceneObservation:
             "max_free_space_violation": max((o.free_space_violation for o in self.objects
                                              if o.free_space_violation is not None), default=None),
             "ucd_mm": mean([o.ucd_mm for o in self.objects]),
+            "ucd_above_support_mm": mean([o.ucd_above_support_mm for o in self.objects]),
             "max_displacement_m": max(disp) if disp else None,
             "max_displacement_deg": max(rot) if rot else None,
             "missing_objects": len(self.missing_ids),
@@ -231,7 +245,8 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
                   world_from_object: Optional[dict[int, np.ndarray]] = None,
                   centres_in_object: Optional[dict[int, np.ndarray]] = None,
                   band_px: float = FREE_SPACE_BAND_PX, margin_m: float = FREE_SPACE_MARGIN_M,
-                  mask_ids: Optional[Sequence[int]] = None) -> SceneObservation:
+                  mask_ids: Optional[Sequence[int]] = None,
+                  support: Optional[tuple[np.ndarray, np.ndarray]] = None) -> SceneObservation:
     """All observation metrics of world-frame meshes against one RGB-D view.
 
     Parameters
@@ -246,6 +261,8 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
         appended to the objects as ``missing`` (IoU 0, nothing rendered) and count in the
         pooled IoU with their whole mask: an object the reconstruction lost is a miss, not
         a blank in the score.
+    support : (point (3,), upward normal (3,)) of the support plane, world frame, for the UCD
+        split by height (``ucd_above_support_mm``, ``support_level_share``); None: no split.
     """
     height, width = masks.shape
     rendered = render_objects(meshes_world, ids, K, world_from_camera, width, height)
@@ -259,6 +276,7 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
         mask_px = int(own.sum())
         pts = backproject(depth_m, K, world_from_camera, mask=own)
         ucd = unilateral_chamfer_m(pts, mesh)
+        above_mm, share = _ucd_above_support(pts, mesh, support)
         fs = free_space_map(rendered, depth_m, masks, i, band_px, margin_m)
         violation |= fs
         disp = (None, None)
@@ -281,7 +299,7 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
             free_space_px=int(fs.sum()),
             free_space_violation=float(fs.sum()) / mask_px if mask_px else None,
             displacement_m=disp[0], displacement_deg=disp[1],
-            iou_seen=iou_seen))
+            iou_seen=iou_seen, ucd_above_support_mm=above_mm, support_level_share=share))
     for i in lost:
         mask_px = int((masks == i).sum())
         objects.append(ObjectObservation(
@@ -289,6 +307,20 @@ def observe_scene(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
             free_space_px=0, free_space_violation=None, missing=True))
     return SceneObservation(objects=objects, pooled_iou=pooled, violation_map=violation,
                             rendered=rendered)
+
+
+def _ucd_above_support(points_world: np.ndarray, mesh,
+                       support: Optional[tuple[np.ndarray, np.ndarray]]
+                       ) -> tuple[Optional[float], Optional[float]]:
+    """(UCD in mm over the points more than ``SUPPORT_LEVEL_M`` above the support plane,
+    share of the points at most that high); (None, None) without a plane or points."""
+    if support is None or len(points_world) == 0:
+        return None, None
+    normal = np.asarray(support[1], dtype=np.float64)
+    height = (points_world - np.asarray(support[0], dtype=np.float64)) @ (normal / np.linalg.norm(normal))
+    low = height <= SUPPORT_LEVEL_M
+    ucd = unilateral_chamfer_m(points_world[~low], mesh) if (~low).any() else None
+    return (None if ucd is None else 1000.0 * ucd), float(low.mean())
 
 
 def _iou_back_where_seen(meshes_world: Sequence, ids: Sequence[int], k: int,

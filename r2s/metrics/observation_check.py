@@ -97,7 +97,8 @@ def check_observation(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
                       centres_in_object: dict[int, np.ndarray],
                       tolerances: FlagTolerances = FlagTolerances(),
                       earlier_flags: Optional[dict[int, str]] = None,
-                      mask_ids: Optional[Sequence[int]] = None) -> ObservationCheck:
+                      mask_ids: Optional[Sequence[int]] = None,
+                      support: Optional[tuple[np.ndarray, np.ndarray]] = None) -> ObservationCheck:
     """Measure and flag every object (arguments as :func:`observe_scene`).
 
     ``earlier_flags``: id -> reason for objects an earlier stage flagged. An instance of
@@ -105,7 +106,7 @@ def check_observation(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
     """
     scene = observe_scene(meshes_world, ids, K, world_from_camera, depth_m, masks,
                           init_world_from_object, world_from_object, centres_in_object,
-                          mask_ids=mask_ids)
+                          mask_ids=mask_ids, support=support)
     earlier = earlier_flags or {}
     blocks: dict[int, dict] = {}
     warnings: list[str] = []
@@ -131,6 +132,7 @@ def check_observation(meshes_world: Sequence, ids: Sequence[int], K: np.ndarray,
         blocks[o.id] = {
             "iou": _round(o.iou, 4), "iou_seen": _round(o.iou_seen, 4),
             "ucd_mm": _round(o.ucd_mm, 3),
+            "ucd_above_support_mm": _round(o.ucd_above_support_mm, 3),
             "free_space_violation": _round(o.free_space_violation, 4),
             "displacement_m": _round(o.displacement_m, 5),
             "displacement_deg": _round(o.displacement_deg, 3),

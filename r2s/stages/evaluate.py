@@ -15,7 +15,9 @@ Scene-level keys of metrics.json: ``stability_ratio``, ``settling_time_s``,
 the rotation error only over objects whose export entry says ``"source": "prior"``),
 observation consistency with or without gt (:mod:`r2s.metrics.observation`):
 ``silhouette_iou`` (pooled), ``min_silhouette_iou`` (worst object with >= 1000 mask px),
-``free_space_violation`` (mean over objects), ``ucd_mm`` (mean), ``max_displacement_m`` /
+``free_space_violation`` (mean over objects), ``ucd_mm`` (mean), ``ucd_above_support_mm``
+(mean of the same over the observed points above the table's level; per object also
+``support_level_share``, the share of its points at that level), ``max_displacement_m`` /
 ``max_displacement_deg`` (from init, as export's ``observation`` blocks say) and
 ``flagged_objects``, plus ``objects`` (the same per object) and ``options``.
 ``evaluate/observation.png`` shows the rendered silhouettes over the input image, their
@@ -66,7 +68,7 @@ SCENE_KEYS: tuple[str, ...] = (
     "chamfer_mm", "fscore", "fscore_threshold_mm", "iou", "centroid_error_mm",
     "rotation_error_deg", "mass_rel_error", "psnr", "ssim", "lpips",
     "silhouette_iou", "min_silhouette_iou", "free_space_violation", "ucd_mm",
-    "max_displacement_m", "max_displacement_deg", "flagged_objects", "missing_objects",
+    "ucd_above_support_mm", "max_displacement_m", "max_displacement_deg", "flagged_objects", "missing_objects",
 )
 """Scene-level keys of metrics.json (and of the stage summary)."""
 
@@ -119,9 +121,11 @@ def _rendering(paths: ScenePaths, export_objects: list, model: dict
     return rendering_metrics(observed, rendered, object_mask), (observed, rendered, object_mask)
 
 
-def _observation(paths: ScenePaths, export_objects: list, model: dict
+def _observation(paths: ScenePaths, export_objects: list, model: dict, support=None
                  ) -> tuple[Optional[SceneObservation], Optional[np.ndarray], str]:
-    """Observation metrics of export/ against the input view, the picture, or why not."""
+    """Observation metrics of export/ against the input view, the picture, or why not
+    (``support``: the export's support plane, with ``point`` and ``normal``, for the UCD
+    over the points above the table)."""
     try:
         view = corrected_input(load_input(paths.root), model)
     except R2SError as exc:
@@ -130,7 +134,10 @@ def _observation(paths: ScenePaths, export_objects: list, model: dict
               for o in export_objects]
     ids = [o.id for o in export_objects]
     scene = observe_scene(meshes, ids, view.camera.K, view.camera.world_from_camera,
-                          view.depth_m, view.masks, mask_ids=instance_ids(view.masks))
+                          view.depth_m, view.masks, mask_ids=instance_ids(view.masks),
+                          support=None if support is None else
+                          (np.asarray(support.point, dtype=float),
+                           np.asarray(support.normal, dtype=float)))
     for entry, o in zip(scene.objects, export_objects):  # displacement as export measured it
         block = (o.model_extra or {}).get("observation") or {}
         entry.displacement_m = block.get("displacement_m")
@@ -153,13 +160,15 @@ def _add_observation(objects: list[dict], export_objects: list,
         per = observed.objects[k] if observed is not None else None
         entry.update({key: None if per is None else getattr(per, attr) for key, attr in (
             ("silhouette_iou", "iou"), ("ucd_mm", "ucd_mm"),
+            ("ucd_above_support_mm", "ucd_above_support_mm"),
+            ("support_level_share", "support_level_share"),
             ("free_space_violation", "free_space_violation"), ("free_space_px", "free_space_px"),
             ("mask_px", "mask_px"), ("displacement_m", "displacement_m"),
             ("displacement_deg", "displacement_deg"))})
         entry["flagged"] = flagged
     scene = observed.summary() if observed is not None else {
         k: None for k in ("silhouette_iou", "min_silhouette_iou", "free_space_violation",
-                          "ucd_mm", "max_displacement_m", "max_displacement_deg",
+                          "ucd_mm", "ucd_above_support_mm", "max_displacement_m", "max_displacement_deg",
                           "missing_objects")}
     scene["flagged_objects"] = sum(flags)
     return scene
@@ -345,8 +354,8 @@ def run(ctx: StageContext) -> dict:
     rendering, view = _rendering(paths, export_objects, ctx.manifest.model)
     scene.update({k: rendering[k] for k in ("psnr", "ssim", "lpips")})
     progress("observation metrics", 0.98)
-    observed, observation_image, observation_reason = _observation(paths, export_objects,
-                                                                   ctx.manifest.model)
+    observed, observation_image, observation_reason = _observation(
+        paths, export_objects, ctx.manifest.model, sim.loaded.scene.support)
     scene.update(_add_observation(objects, export_objects, observed))
     scene = {key: _finite_or_none(scene[key]) for key in SCENE_KEYS}
 

@@ -170,10 +170,11 @@ def _init_state(paths: ScenePaths) -> Optional[SceneState]:
 
 
 def _observation(paths: ScenePaths, items: list[ObjectItem], opt: Options, model: dict,
-                 view: InputScene, init: Optional[SceneState]
+                 view: InputScene, init: Optional[SceneState], support: Optional[dict] = None
                  ) -> tuple[dict[int, dict], list[str], dict]:
     """Per-object ``observation`` blocks, warning lines and a scene summary against the
-    input as the scene's ``model`` corrects it (``view``). Takes the flags an earlier stage
+    input as the scene's ``model`` corrects it (``view``; ``support``: the support plane's
+    ``point`` and ``normal``, for the UCD over the points above the table). Takes the flags an earlier stage
     left in ``item.extra`` (:data:`OBSERVATION_FLAG_KEY`) out of them, and flags the objects
     that may rest on one of the unmasked things ``init`` (its state) found."""
     for item in items:  # mask ids reconstructed as pieces of this object (extra key)
@@ -202,7 +203,9 @@ def _observation(paths: ScenePaths, items: list[ObjectItem], opt: Options, model
         [item.id for item in items], view.camera.K, view.camera.world_from_camera,
         view.depth_m, view.masks, {item.id: np.asarray(item.pose) for item in items},
         init_poses, {item.id: np.asarray(m.centroid) for m, item in zip(meshes, items)},
-        opt.tolerances(), earlier, mask_ids=instance_ids(view.masks))
+        opt.tolerances(), earlier, mask_ids=instance_ids(view.masks),
+        support=None if support is None else (np.asarray(support["point"], dtype=float),
+                                              np.asarray(support["normal"], dtype=float)))
     summary = {k: None if v is None else round(float(v), 4)
                for k, v in check.scene.summary().items()}
     return check.blocks, check.warnings, summary
@@ -223,7 +226,7 @@ def run(ctx: StageContext) -> dict:
     if opt.observation and view is not None:
         ctx.progress("observation check", 0.0)
         blocks, warnings, observed = _observation(paths, items, opt, ctx.manifest.model, view,
-                                                  init)
+                                                  init, support)
         for item in items:
             if item.id in blocks:
                 item.extra["observation"] = blocks[item.id]
