@@ -213,3 +213,17 @@ def test_a_sliver_of_edge_colours_joins_but_not_one_of_another_colour():
     assert list(parents) == [9] and parents[9][0] == 4
     rgb[30:60, 70:73] = (40, 200, 40)
     assert fragment_parents(masks, depth, rgb) == {}
+
+
+def test_the_halves_of_a_split_with_a_sliver_along_the_cut_are_one_object():
+    """The segmenter cut one box face in two (ids 1 and 7) and gave the 4 px strip along
+    the cut an id of its own (9): the two halves share no boundary, each shares one with
+    the strip. The strip joins one half; then, on the masks with it merged, that half
+    shares the strip's 40 px boundary with the other half, which joins too."""
+    masks = np.zeros((H, W), np.int32)
+    masks[20:60, 20:68], masks[20:60, 68:72], masks[20:60, 72:100] = 1, 9, 7
+    depth = _plane_depth()
+    rgb = _image((200, 40, 40), (200, 40, 40), 70)
+    parents = fragment_parents(masks, depth, rgb)
+    assert {i: p for i, (p, _) in parents.items()} == {9: 1, 7: 1}
+    assert set(np.unique(merge_masks(masks, parents))) == {0, 1}

@@ -83,6 +83,8 @@ MIN_VALID_PAIRS = 4
 MIN_OUTLINE_FRACTION = 0.05
 STRIP_PX = 4
 BLEED_PX = 4
+MERGE_ROUNDS = 3
+"""Rounds of the boundary test, each on the masks with the pieces found so far merged."""
 
 
 @dataclass(frozen=True)
@@ -245,9 +247,37 @@ def fragment_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
     docstring). ``protected_ids``: ids that are whole objects (they have a shape prior);
     ``declared_ids``: ids the user named (kept over undeclared ones when merged). With the
     camera's ``K`` (3, 3), ids left whole by the boundary test are then tested for pieces
-    seen past an occluder (:mod:`r2s.geometry.occluded_fragments`)."""
+    seen past an occluder (:mod:`r2s.geometry.occluded_fragments`).
+
+    The boundary test runs again on the masks with the pieces found merged, up to
+    ``MERGE_ROUNDS`` times: a sliver lying along the cut between two halves of a split
+    object takes most of the boundary they share, and only once the sliver has joined one
+    half does the other half's boundary with it become long enough to judge."""
     protected = set(int(i) for i in protected_ids)
     declared = set(int(i) for i in declared_ids) | protected
+    resolved: dict[int, tuple[int, str]] = {}
+    for _ in range(MERGE_ROUNDS):
+        found = _boundary_parents(merge_masks(masks, resolved), depth_m, rgb, protected,
+                                  declared)
+        if not found:
+            break
+        resolved = _composed(resolved, found)
+    if K is None:
+        return resolved
+    bridged = occluded_parents(merge_masks(masks, resolved), depth_m, rgb, K, protected)
+    resolved.update(bridged)
+    for piece, (root, why) in bridged.items():
+        if piece in declared and root not in declared and root not in resolved:
+            # the declared id names the object (once): the root and its other pieces go to it
+            resolved = {f: (piece if p == root else p, w)
+                        for f, (p, w) in resolved.items() if f != piece}
+            resolved[root] = (piece, why)
+    return resolved
+
+
+def _boundary_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
+                      protected: set[int], declared: set[int]) -> dict[int, tuple[int, str]]:
+    """One round of the boundary test: ``{fragment id: (root id, why)}``, chains resolved."""
     parent: dict[int, tuple[int, str]] = {}
     evidence = sorted(boundary_evidence(masks, depth_m, rgb), key=lambda e: -e.pairs)
     for ev in evidence:
@@ -273,17 +303,17 @@ def fragment_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
             par = parent[par][0]
         if par != frag:
             resolved[frag] = (par, why)
-    if K is None:
-        return resolved
-    bridged = occluded_parents(merge_masks(masks, resolved), depth_m, rgb, K, protected)
-    resolved.update(bridged)
-    for piece, (root, why) in bridged.items():
-        if piece in declared and root not in declared and root not in resolved:
-            # the declared id names the object (once): the root and its other pieces go to it
-            resolved = {f: (piece if p == root else p, w)
-                        for f, (p, w) in resolved.items() if f != piece}
-            resolved[root] = (piece, why)
     return resolved
+
+
+def _composed(first: dict[int, tuple[int, str]], then: dict[int, tuple[int, str]]
+              ) -> dict[int, tuple[int, str]]:
+    """The merges of ``first`` followed by those found on its merged masks (``then``,
+    whose fragments are roots of ``first``): every id to its final root."""
+    out = {frag: (then[root][0] if root in then else root, why)
+           for frag, (root, why) in first.items()}
+    out.update(then)
+    return out
 
 
 def merge_masks(masks: np.ndarray, parents: dict[int, tuple[int, str]]) -> np.ndarray:
