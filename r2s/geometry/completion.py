@@ -533,7 +533,7 @@ def complete_from_points(points_world: np.ndarray, plane_point: np.ndarray,
         under = _tops_below(under_meshes_world, plane_from_world, gx, gy, top - 2 * cell)
         bottom = np.maximum(bottom, under)
         raised = _bridge(bottom, under, top, sdf <= 0, gx, gy, cell, pts, bridge_guards)
-        bridged = raised is not bottom
+        bridged = raised is not bottom  # _bridge returns ``bottom`` itself when it refuses
         bottom = raised
     # keep at least two cells of material in every column
     top = np.maximum(top, bottom + 2 * cell)

@@ -22,14 +22,23 @@ stretch the footprint far past the object. Two tests, on the mask's pixels:
   ``min_region_fraction`` of the largest in the same part of the mask are dropped (the
   largest region and any region nearly as large are kept); a part of the mask cut off
   from the rest by an occluder (a plate's far rim seen between an apple and a banana) is
-  compared only with itself, since bleed grows into a mask from its outline.
+  compared only with itself, since bleed grows into a mask from its outline;
+- *bleed onto a neighbour* (given the neighbours' depths): a linked region other than
+  the largest of its part, all of whose pixels lie within ``bleed_band_px`` of another
+  object's mask and at least half of which read that neighbour's depth there (within the
+  same jump), is the neighbour's surface and is dropped however large it is against the
+  object's own: a small object seen past a nearer one, noisy and cut into pieces by
+  holes, is otherwise outweighed by the strip of the occluder its mask took in.
 """
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy import ndimage, sparse
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from r2s.geometry.plane import signed_distance
 
@@ -39,6 +48,11 @@ JUMP_MIN_M = 0.008
 JUMP_FRACTION = 0.015
 MIN_REGION_FRACTION = 0.25
 MIN_KEEP_FRACTION = 0.3
+BLEED_BAND_PX = 6
+"""Bleed onto a neighbour reaches at most this far from the neighbour's mask (pixels; the
+widest bleed of the realistic benchmark's segmenter model is 4 px)."""
+NEIGHBOUR_SAMPLES = 5
+"""A pixel is compared with the median depth of this many nearest neighbour pixels."""
 
 
 def interior_pixels(pixels: np.ndarray, edge_px: int,
@@ -181,7 +195,8 @@ def object_point_mask(points_world: np.ndarray, pixels: np.ndarray, depth_m: np.
                       min_region_fraction: float = MIN_REGION_FRACTION,
                       min_keep_fraction: float = MIN_KEEP_FRACTION,
                       edge_px: int = EDGE_PX, neighbour_pixels: np.ndarray | None = None,
-                      mask_pixels: np.ndarray | None = None) -> np.ndarray:
+                      mask_pixels: np.ndarray | None = None,
+                      neighbour_depth_m: np.ndarray | None = None) -> np.ndarray:
     """(N,) bool: which of an instance's observed points belong to the object.
 
     points_world : (N, 3) back-projected mask pixels; pixels : (N, 2) their (row, col);
@@ -189,7 +204,9 @@ def object_point_mask(points_world: np.ndarray, pixels: np.ndarray, depth_m: np.
     (normal up); neighbour_pixels : (M, 2) the other objects' mask pixels (the support
     band's ring runs only where the mask borders no other object); mask_pixels : (K, 2)
     the whole instance mask, pixels without depth too (the mask's parts are then sized by
-    their mask pixels, :func:`part_labels`; None: by their readings). At least
+    their mask pixels, :func:`part_labels`; None: by their readings);
+    neighbour_depth_m : (M,) the depth at ``neighbour_pixels`` (NaN: no reading), for the
+    bleed-onto-a-neighbour test (None: no such test). At least
     ``min_keep_fraction`` of the points (and 10) are always kept: when a test would drop
     more it is skipped.
     """
@@ -215,6 +232,47 @@ def object_point_mask(points_world: np.ndarray, pixels: np.ndarray, depth_m: np.
     small_part = part_px < MIN_PART_PX  # specks are judged against the whole mask
     largest[small_part] = sizes.max()
     region_keep = sizes[labels] >= min_region_fraction * largest[part]
+    if neighbour_pixels is not None and neighbour_depth_m is not None:
+        on_neighbour = _on_neighbour(np.asarray(pixels)[idx], np.asarray(depth_m)[idx],
+                                     labels, neighbour_pixels, neighbour_depth_m)
+        is_largest = sizes[labels] == largest[part]
+        region_keep &= ~(on_neighbour[labels] & ~is_largest)
     if np.count_nonzero(region_keep) >= floor:
         keep[idx[~region_keep]] = False
     return keep
+
+
+def _on_neighbour(pixels: np.ndarray, depth_m: np.ndarray, labels: np.ndarray,
+                  neighbour_pixels: np.ndarray, neighbour_depth_m: np.ndarray,
+                  band_px: float = BLEED_BAND_PX) -> np.ndarray:
+    """(R,) bool per region label: every pixel within ``band_px`` of a neighbour's mask,
+    and at least half of them at the depth the neighbour reads nearby (the median of its
+    ``NEIGHBOUR_SAMPLES`` nearest pixels with a reading, within the surface jump)."""
+    n_regions = int(labels.max()) + 1 if len(labels) else 0
+    pix = np.asarray(pixels, dtype=np.float64)
+    other = np.asarray(neighbour_pixels, dtype=np.float64).reshape(-1, 2)
+    other_z = np.asarray(neighbour_depth_m, dtype=np.float64).reshape(-1)
+    if len(pix):  # only the neighbour pixels a query below can reach
+        reach = 2 * band_px
+        box = np.all((other >= pix.min(axis=0) - reach) & (other <= pix.max(axis=0) + reach),
+                     axis=1)
+        other, other_z = other[box], other_z[box]
+    read = np.isfinite(other_z) & (other_z > 0)
+    if n_regions == 0 or not read.any():
+        return np.zeros(n_regions, dtype=bool)
+    near = cKDTree(other).query(pix, k=1)[0] <= band_px
+    k = min(NEIGHBOUR_SAMPLES, int(read.sum()))
+    dist, j = cKDTree(other[read]).query(pix, k=k)
+    dist, j = dist.reshape(len(pix), k), j.reshape(len(pix), k)
+    nz = np.where(dist <= 2 * band_px, other_z[read][j], np.nan)
+    with warnings.catch_warnings():  # a pixel with no reading near: NaN, not the same
+        warnings.simplefilter("ignore", RuntimeWarning)
+        ref = np.nanmedian(nz, axis=1)
+    z = np.asarray(depth_m, dtype=np.float64)
+    jump = np.maximum(JUMP_MIN_M, JUMP_FRACTION * z)
+    same = np.isfinite(ref) & (np.abs(z - ref) < jump)
+    all_near = np.bincount(labels, weights=near, minlength=n_regions) == np.bincount(
+        labels, minlength=n_regions)
+    share_same = np.bincount(labels, weights=same, minlength=n_regions) / np.maximum(
+        np.bincount(labels, minlength=n_regions), 1)
+    return all_near & (share_same >= 0.5)

@@ -660,8 +660,10 @@ def _complete_shape(scene: InputScene, spec: ObjectSpec, observed: dict, plane: 
     own_px = np.argwhere(own)
     other_masks = (scene.masks > 0) & ~own
     if o.completion_clean_points:
+        other_px = np.argwhere(other_masks)
         keep = object_point_mask(pts, pix, depth, plane.point, plane.normal,
-                                 neighbour_pixels=np.argwhere(other_masks),
+                                 neighbour_pixels=other_px,
+                                 neighbour_depth_m=scene.depth_m[other_px[:, 0], other_px[:, 1]],
                                  mask_pixels=own_px if o.completion_parts_by_mask else None)
         pts, pix = pts[keep], pix[keep]
     filled, filled_pix = fill_mask_holes(own, scene.depth_m, pix, cam.K,
