@@ -36,15 +36,16 @@ from scipy import ndimage
 import trimesh
 
 from r2s.geometry.camera import backproject
+from r2s.geometry.point_cleanup import PLANE_BAND_M
 from r2s.render.gbuffer import rasterize
 
 FREE_SPACE_BAND_PX = 2.0
 """Pixels within this distance of the object's own mask never count as violations."""
 FREE_SPACE_MARGIN_M = 0.015
 """A rendered surface must be at least this far in front of the observed depth."""
-SUPPORT_LEVEL_M = 0.006
-"""An observed point at most this high above the support plane is at the table's level
-(the band r2s/geometry/point_cleanup.py drops from completions)."""
+SUPPORT_LEVEL_M = PLANE_BAND_M
+"""An observed point at most this high above the support plane is at the table's level:
+the band r2s/geometry/point_cleanup.py drops from completions (6 mm)."""
 LARGE_MASK_PX = 1000
 """The worst-object IoU of a scene is taken over objects with at least this many mask px."""
 SEEN_MOVE_M = 0.002
@@ -317,7 +318,8 @@ def _ucd_above_support(points_world: np.ndarray, mesh,
     if support is None or len(points_world) == 0:
         return None, None
     normal = np.asarray(support[1], dtype=np.float64)
-    height = (points_world - np.asarray(support[0], dtype=np.float64)) @ (normal / np.linalg.norm(normal))
+    height = (points_world - np.asarray(support[0], dtype=np.float64)) @ (
+        normal / np.linalg.norm(normal))
     low = height <= SUPPORT_LEVEL_M
     ucd = unilateral_chamfer_m(points_world[~low], mesh) if (~low).any() else None
     return (None if ucd is None else 1000.0 * ucd), float(low.mean())

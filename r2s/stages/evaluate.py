@@ -68,7 +68,8 @@ SCENE_KEYS: tuple[str, ...] = (
     "chamfer_mm", "fscore", "fscore_threshold_mm", "iou", "centroid_error_mm",
     "rotation_error_deg", "mass_rel_error", "psnr", "ssim", "lpips",
     "silhouette_iou", "min_silhouette_iou", "free_space_violation", "ucd_mm",
-    "ucd_above_support_mm", "max_displacement_m", "max_displacement_deg", "flagged_objects", "missing_objects",
+    "ucd_above_support_mm", "max_displacement_m", "max_displacement_deg", "flagged_objects",
+    "missing_objects",
 )
 """Scene-level keys of metrics.json (and of the stage summary)."""
 
@@ -168,7 +169,8 @@ def _add_observation(objects: list[dict], export_objects: list,
         entry["flagged"] = flagged
     scene = observed.summary() if observed is not None else {
         k: None for k in ("silhouette_iou", "min_silhouette_iou", "free_space_violation",
-                          "ucd_mm", "ucd_above_support_mm", "max_displacement_m", "max_displacement_deg",
+                          "ucd_mm", "ucd_above_support_mm", "max_displacement_m",
+                          "max_displacement_deg",
                           "missing_objects")}
     scene["flagged_objects"] = sum(flags)
     return scene

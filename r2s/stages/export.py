@@ -174,9 +174,10 @@ def _observation(paths: ScenePaths, items: list[ObjectItem], opt: Options, model
                  ) -> tuple[dict[int, dict], list[str], dict]:
     """Per-object ``observation`` blocks, warning lines and a scene summary against the
     input as the scene's ``model`` corrects it (``view``; ``support``: the support plane's
-    ``point`` and ``normal``, for the UCD over the points above the table). Takes the flags an earlier stage
-    left in ``item.extra`` (:data:`OBSERVATION_FLAG_KEY`) out of them, and flags the objects
-    that may rest on one of the unmasked things ``init`` (its state) found."""
+    ``point`` and ``normal``, for the UCD over the points above the table). Takes the flags
+    an earlier stage left in ``item.extra`` (:data:`OBSERVATION_FLAG_KEY`) out of them, and
+    flags the objects that may rest on one of the unmasked things ``init`` (its state)
+    found."""
     for item in items:  # mask ids reconstructed as pieces of this object (extra key)
         pieces = sorted(f for f, p in view.merged_ids.items() if p == item.id)
         if pieces:
