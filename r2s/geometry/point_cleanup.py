@@ -129,6 +129,13 @@ def mask_parts(pixels: np.ndarray, gap_px: int = PART_GAP_PX) -> np.ndarray:
     return labels[rr, cc].astype(np.int64) - 1
 
 
+def same_surface(z_a: np.ndarray, z_b: np.ndarray, jump_min_m: float = JUMP_MIN_M,
+                 jump_fraction: float = JUMP_FRACTION) -> np.ndarray:
+    """Elementwise bool: depths ``z_a`` and ``z_b`` (metres) differ by less than the jump
+    ``max(jump_min_m, jump_fraction * min(z_a, z_b))`` that separates two surfaces."""
+    return np.abs(z_a - z_b) < np.maximum(jump_min_m, jump_fraction * np.minimum(z_a, z_b))
+
+
 def surface_regions(pixels: np.ndarray, depth_m: np.ndarray, jump_min_m: float = JUMP_MIN_M,
                     jump_fraction: float = JUMP_FRACTION) -> np.ndarray:
     """(N,) int region label of each pixel: 8-connected pixels without a depth jump.
@@ -148,7 +155,7 @@ def surface_regions(pixels: np.ndarray, depth_m: np.ndarray, jump_min_m: float =
         other = index[rr + dr, cc + dc]
         ok = other >= 0
         a, b = np.flatnonzero(ok), other[ok]
-        near = np.abs(z[a] - z[b]) < np.maximum(jump_min_m, jump_fraction * np.minimum(z[a], z[b]))
+        near = same_surface(z[a], z[b], jump_min_m, jump_fraction)
         src.append(a[near])
         dst.append(b[near])
     src, dst = np.concatenate(src), np.concatenate(dst)
@@ -269,10 +276,8 @@ def _on_neighbour(pixels: np.ndarray, depth_m: np.ndarray, labels: np.ndarray,
         warnings.simplefilter("ignore", RuntimeWarning)
         ref = np.nanmedian(nz, axis=1)
     z = np.asarray(depth_m, dtype=np.float64)
-    jump = np.maximum(JUMP_MIN_M, JUMP_FRACTION * z)
-    same = np.isfinite(ref) & (np.abs(z - ref) < jump)
-    all_near = np.bincount(labels, weights=near, minlength=n_regions) == np.bincount(
-        labels, minlength=n_regions)
-    share_same = np.bincount(labels, weights=same, minlength=n_regions) / np.maximum(
-        np.bincount(labels, minlength=n_regions), 1)
+    same = np.isfinite(ref) & same_surface(z, np.where(np.isfinite(ref), ref, np.inf))
+    count = np.maximum(np.bincount(labels, minlength=n_regions), 1)
+    all_near = np.bincount(labels, weights=near, minlength=n_regions) == count
+    share_same = np.bincount(labels, weights=same, minlength=n_regions) / count
     return all_near & (share_same >= 0.5)
