@@ -66,6 +66,8 @@ CASES: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
     "depth_shift": ({}, ()),
     "radial_depth": ({}, ()),
     "scale+radial": ({"depth_scale": "1.04"}, ("depth_scale",)),
+    "column_depth": ({}, ()),
+    "depth_rotation": ({}, ()),
 }
 """case -> (synth effects, the effects diagnose should name). ``row_depth``,
 ``principal_point_error``, ``disparity_bias`` and ``dark_depth`` are outside the catalogue
@@ -77,7 +79,7 @@ unexplained, report.json's ``unexplained``). ``focal_error`` (:func:`add_focal_e
 injected by this script too) is in the catalogue as ``focal_length``."""
 
 UNCATALOGUED = {"row_depth", "principal_point_error", "disparity_bias", "dark_depth",
-                "depth_shift", "radial_depth"}
+                "depth_shift", "radial_depth", "column_depth", "depth_rotation"}
 ROW_DEPTH_ERROR_M = 0.006
 """The uncatalogued effect: depth reads long by 6 mm x (row offset from the centre,
 -1..1)^2, a gutter along the image rows."""
@@ -231,7 +233,53 @@ def add_radial_depth_error(scene: Path, error_m: float = RADIAL_DEPTH_ERROR_M) -
     _record_injected(scene, "radial_depth", {"error_corner_m": error_m})
 
 
-SCRIPT_INJECT = {"row_depth": add_row_depth_error, "radial_depth": add_radial_depth_error,
+COLUMN_DEPTH_ERROR_M = 0.005
+"""``column_depth``: depth reads long by 5 mm x (column offset from the centre / half the
+width), from -5 mm at the left edge to +5 at the right: a structured-light sensor whose
+baseline is off, a depth error that tilts the table without bending it."""
+
+DEPTH_ROTATION_DEG = 1.5
+"""``depth_rotation``: the depth image turned 1.5 deg about the image centre against the
+colour image and the masks (a depth-to-colour registration whose rotation about the optical
+axis is off): each object's edges move across its radius, and the moves cancel over the
+image, so the shift test alone does not see it."""
+
+
+def add_column_depth_error(scene: Path, error_m: float = COLUMN_DEPTH_ERROR_M) -> None:
+    """Inject a depth error linear in the image column into input/depth.png (recorded in gt/
+    only): ``error_m`` at the right edge, ``-error_m`` at the left."""
+    def transform(depth: np.ndarray) -> np.ndarray:
+        w = depth.shape[1]
+        cols = (np.arange(w) - (w - 1) / 2) / ((w - 1) / 2)
+        return depth + error_m * cols[None, :]
+
+    _rewrite_depth(scene, transform)
+    _record_injected(scene, "column_depth", {"error_right_edge_m": error_m})
+
+
+def add_depth_rotation(scene: Path, angle_deg: float = DEPTH_ROTATION_DEG) -> None:
+    """Inject a depth-to-colour misregistration by a turn into input/depth.png (recorded in
+    gt/ only): the depth image turned ``angle_deg`` about the image centre, clockwise as the
+    image is shown (rows down; nearest pixel); pixels turned in from outside read
+    nothing."""
+    def transform(depth: np.ndarray) -> np.ndarray:
+        h, w = depth.shape
+        v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+        a = np.deg2rad(angle_deg)
+        du, dv = u - (w - 1) / 2, v - (h - 1) / 2
+        su = np.rint(np.cos(a) * du + np.sin(a) * dv + (w - 1) / 2).astype(int)
+        sv = np.rint(-np.sin(a) * du + np.cos(a) * dv + (h - 1) / 2).astype(int)
+        inside = (su >= 0) & (su < w) & (sv >= 0) & (sv < h)
+        out = np.full_like(depth, np.nan)
+        out[inside] = depth[sv[inside], su[inside]]
+        return out
+
+    _rewrite_depth(scene, transform)
+    _record_injected(scene, "depth_rotation", {"angle_deg": angle_deg})
+
+
+SCRIPT_INJECT = {"column_depth": add_column_depth_error, "depth_rotation": add_depth_rotation,
+                 "row_depth": add_row_depth_error, "radial_depth": add_radial_depth_error,
                  "focal_error": add_focal_error,
                  "principal_point_error": add_principal_point_error,
                  "disparity_bias": add_disparity_bias, "dark_depth": add_dark_depth_bias,

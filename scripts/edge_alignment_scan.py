@@ -3,11 +3,13 @@
 
 Runs r2s/diagnose/stats/edge_alignment.py's test on each scene's input/ (depth.png and
 masks.png as they are), or with the depth image first moved ``--shift-px`` pixels to the
-right (the columns it uncovers read nothing), which is how the thresholds of that test
-were measured (docs/diagnose.md, section 6). Nothing is written.
+right (the columns it uncovers read nothing) or turned ``--turn-deg`` degrees about the
+image centre (clockwise as shown; what turns in from outside reads nothing), which is how
+the thresholds of that test were measured (docs/diagnose.md, section 6). Nothing is
+written.
 
 Usage:
-  python scripts/edge_alignment_scan.py SCENE [SCENE ...] [--shift-px 3]
+  python scripts/edge_alignment_scan.py SCENE [SCENE ...] [--shift-px 3] [--turn-deg 1.5]
 """
 
 from __future__ import annotations
@@ -34,23 +36,45 @@ def moved_right(depth_m: np.ndarray, shift_px: int) -> np.ndarray:
     return out
 
 
+def turned(depth_m: np.ndarray, turn_deg: float) -> np.ndarray:
+    """(H, W) depth turned ``turn_deg`` about the image centre (clockwise as shown, rows
+    down; nearest pixel), what turns in from outside NaN."""
+    if not turn_deg:
+        return depth_m
+    h, w = depth_m.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    a = np.deg2rad(turn_deg)
+    du, dv = u - (w - 1) / 2, v - (h - 1) / 2
+    su = np.rint(np.cos(a) * du + np.sin(a) * dv + (w - 1) / 2).astype(int)
+    sv = np.rint(-np.sin(a) * du + np.cos(a) * dv + (h - 1) / 2).astype(int)
+    inside = (su >= 0) & (su < w) & (sv >= 0) & (sv < h)
+    out = np.full_like(depth_m, np.nan)
+    out[inside] = depth_m[sv[inside], su[inside]]
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("scenes", nargs="+", type=Path)
     ap.add_argument("--shift-px", type=int, default=0)
+    ap.add_argument("--turn-deg", type=float, default=0.0)
     args = ap.parse_args()
     shifts = []
     for root in args.scenes:
         scene = load_input(root)
-        found = test_edge_alignment(moved_right(scene.depth_m, args.shift_px), scene.masks)
+        depth = turned(moved_right(scene.depth_m, args.shift_px), args.turn_deg)
+        found = test_edge_alignment(depth, scene.masks)
         if found is None:
             print(f"{root}: fewer than 3 objects with outlines on depth edges")
             continue
         shifts.append(max(abs(v) for v in found.shift_px))
         print(f"{root}: shift ({found.shift_px[0]:+.2f}, {found.shift_px[1]:+.2f}) px, "
               f"agreement {found.agreement:.2f} of {len(found.peaks_px)} objects, "
-              f"reported: {'yes' if found.structured else 'no'}")
+              f"turn {found.turn_deg:+.2f} deg (sd {found.turn_sd_deg:.2f}, count "
+              f"x{found.turn_gain:.3f}), "
+              f"reported: {'yes' if found.structured else 'no'}"
+              f"{' (turn)' if found.turn_structured else ''}")
     if shifts:
         print(f"{len(shifts)} scenes: largest |shift| {min(shifts):.2f}-{max(shifts):.2f} px")
 

@@ -82,3 +82,38 @@ def test_the_report_names_the_pattern():
     text = " ".join(lines)
     assert "Unexplained structured residual" in text
     assert "3.0 px right" in text and "misregistered" in text
+
+
+def _turned(depth: np.ndarray, turn_deg: float) -> np.ndarray:
+    """(H, W) depth turned ``turn_deg`` about the image centre, clockwise as shown (rows
+    down), nearest pixel; what turns in from outside reads nothing."""
+    h, w = depth.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    a = np.deg2rad(turn_deg)
+    du, dv = u - (w - 1) / 2, v - (h - 1) / 2
+    su = np.rint(np.cos(a) * du + np.sin(a) * dv + (w - 1) / 2).astype(int)
+    sv = np.rint(-np.sin(a) * du + np.cos(a) * dv + (h - 1) / 2).astype(int)
+    inside = (su >= 0) & (su < w) & (sv >= 0) & (sv < h)
+    out = np.full_like(depth, np.nan)
+    out[inside] = depth[sv[inside], su[inside]]
+    return out
+
+
+def test_a_turned_depth_image_is_found_where_the_shifts_cancel():
+    """Turned 2.5 deg, the boxes' edges move 1.5-3 px each way: no common shift, a turn."""
+    for turn in (2.5, -2.5):
+        depth, masks = _view()
+        finding = ea.test_edge_alignment(_turned(depth, turn), masks)
+        assert finding.structured and finding.turn_structured, turn
+        assert abs(finding.turn_deg - turn) < 0.5, finding.turn_deg
+        assert finding.turn_gain >= 1.3
+        assert max(abs(v) for v in finding.shift_px) < ea.MIN_SHIFT_PX
+        side = "clockwise" if turn > 0 else "counter-clockwise"
+        assert f"turned {abs(finding.turn_deg):.1f} deg {side}" in finding.pattern
+    assert edge_figure(finding, "turn")[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_aligned_or_bleeding_masks_read_no_turn():
+    for kwargs in ({}, {"dilate_px": 2}, {"edge_holes_px": 2}):
+        finding = ea.test_edge_alignment(*_view(**kwargs))
+        assert abs(finding.turn_deg) < 0.3 and not finding.turn_structured, kwargs

@@ -37,10 +37,11 @@ K = intrinsics(W, H, 50.0)
 
 
 def _table_points(k1: float = 0.0, row_error_m: float = 0.0, noise_m: float = 0.0003,
-                  seed: int = 0) -> np.ndarray:
+                  seed: int = 0, column_error_m: float = 0.0) -> np.ndarray:
     """(N, 3) camera-frame table points of a camera looking down at a level table, as a
     camera with radial distortion ``k1`` (and a depth error growing with the squared row
-    offset, ``row_error_m``) back-projects them through its ideal K."""
+    offset, ``row_error_m``, or linearly across the columns, ``column_error_m`` at the
+    right edge) back-projects them through its ideal K."""
     rng = np.random.default_rng(seed)
     world_from_camera = look_at([0.5, -0.35, 0.42], [0.0, 0.0, 0.03])
     cam_from_world = np.linalg.inv(world_from_camera)
@@ -52,7 +53,8 @@ def _table_points(k1: float = 0.0, row_error_m: float = 0.0, noise_m: float = 0.
     rays = np.hstack([x, np.ones((len(x), 1))])
     z = (n_c @ p_c) / (rays @ n_c)
     rows = (v.ravel() - (H - 1) / 2) / ((H - 1) / 2)
-    z = z + row_error_m * rows ** 2 + rng.normal(0.0, noise_m, len(z))
+    cols = (u.ravel() - (W - 1) / 2) / ((W - 1) / 2)
+    z = z + row_error_m * rows ** 2 + column_error_m * cols + rng.normal(0.0, noise_m, len(z))
     ok = z > 0
     # back-projected through the ideal K at the recorded (distorted) pixel
     return np.hstack([xd * z[:, None], z[:, None]])[ok]
@@ -128,6 +130,17 @@ def test_structure_test_finds_a_row_pattern_and_passes_noise():
     assert row.structured and row.best_feature == "row" and row.best_r2 > 0.8
     lens = structure_test(Residuals(table_shape=_shape(_table_points(k1=-0.12))))
     assert lens.structured
+
+
+def test_a_depth_error_across_the_columns_is_described_by_column_and_row_together():
+    """Depth reading long by 5 mm x the column offset keeps the table nearly a plane; what it
+    leaves bends as the column times the row, which no single feature carries."""
+    found = structure_test(Residuals(table_shape=_shape(_table_points(column_error_m=0.005))))
+    assert found.structured and found.best_feature == "position"
+    assert found.best_r2 > 0.8
+    assert found.r2_by_feature["position"] >= max(
+        v for k, v in found.r2_by_feature.items() if k != "position") + 0.2
+    assert "column and row together" in found.pattern
 
 
 def test_lens_fit_to_a_row_pattern_is_not_named():

@@ -151,7 +151,13 @@ def structure_figure(finding, width: int, height: int, title: str) -> bytes:
     fig.colorbar(sc, ax=ax, fraction=0.035, label="towards the camera (mm)")
     ax = axes[1]
     name = finding.best_feature
-    if name is not None and name in finding.feature_values:
+    if name == "position" and len(getattr(finding, "position_fit_mm", ())) == len(tiles):
+        fit = np.asarray(finding.position_fit_mm, dtype=float)
+        ax.plot(fit, tiles, "o", ms=4)
+        lim = [float(min(fit.min(), tiles.min())), float(max(fit.max(), tiles.max()))]
+        ax.plot(lim, lim, "-", lw=1.5)
+        ax.set_xlabel("a quadratic in column and row together, fitted (mm)")
+    elif name is not None and name in finding.feature_values:
         x = np.asarray(finding.feature_values[name], dtype=float)
         ax.plot(x, tiles, "o", ms=4)
         order = np.argsort(x)
@@ -173,7 +179,8 @@ def structure_figure(finding, width: int, height: int, title: str) -> bytes:
 def edge_figure(finding, title: str) -> bytes:
     """PNG bytes of a depth-to-colour misregistration (:class:`r2s.diagnose.stats.
     edge_alignment.EdgeFinding`): the masks' outline pixels on a depth edge against the
-    shift, summed over the objects, with the scene's top and each object's own."""
+    shift, summed over the objects, with the scene's top and each object's own; beside it,
+    the best count over the shifts against the outlines' turn about the image centre."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -181,7 +188,11 @@ def edge_figure(finding, title: str) -> bytes:
 
     corr = np.asarray(finding.correlation, dtype=float)
     s = corr.shape[0] // 2
-    fig, ax = plt.subplots(figsize=(5.6, 4.8))
+    profile = getattr(finding, "turn_profile", None)
+    fig, axes = plt.subplots(1, 2 if profile is not None else 1,
+                             figsize=(10.4 if profile is not None else 5.6, 4.8),
+                             squeeze=False)
+    ax = axes[0, 0]
     im = ax.imshow(corr, origin="upper", extent=(-s - 0.5, s + 0.5, s + 0.5, -s - 0.5),
                    cmap="viridis")
     fig.colorbar(im, ax=ax, label="mask outline pixels on a depth edge")
@@ -194,9 +205,20 @@ def edge_figure(finding, title: str) -> bytes:
     ax.axvline(0, color="w", lw=0.5)
     ax.set_xlabel("depth edges right of the mask outline (px)")
     ax.set_ylabel("depth edges below the mask outline (px)")
-    ax.set_title(f"shift ({finding.shift_px[0]:+.1f}, {finding.shift_px[1]:+.1f}) px, "
-                 f"{finding.agreement:.0%} of objects agree", fontsize=9)
+    ax.set_title(f"unturned: shift ({finding.shift_px[0]:+.1f}, {finding.shift_px[1]:+.1f}) "
+                 f"px, {finding.agreement:.0%} of objects agree", fontsize=9)
     ax.legend(fontsize=7, loc="lower right")
+    if profile is not None:
+        ax = axes[0, 1]
+        prof = np.asarray(profile, dtype=float)
+        ax.plot(prof[:, 0], prof[:, 1], "k.-")
+        ax.axvline(finding.turn_deg, color="r", lw=1.5,
+                   label=f"turn {finding.turn_deg:+.2f} deg")
+        ax.axvline(0, color="0.6", lw=0.5)
+        ax.set_xlabel("outlines turned about the image centre (deg, + clockwise)")
+        ax.set_ylabel("best count over the shifts")
+        ax.set_title(f"turned: best count x{finding.turn_gain:.2f} the unturned one", fontsize=9)
+        ax.legend(fontsize=7)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     data = _png(fig)

@@ -38,7 +38,8 @@ from r2s.diagnose.measure.reconstruction_jumps import reconstruction_jumps
 from r2s.diagnose.measure.scene_dir import Measured, MeasureSettings, measure_scene, scene_gt_errors
 from r2s.diagnose.stats.steps import StepJudgement, claimed_blocks, judge_step, leaves_structure
 from r2s.diagnose.stats.colour_test import Z_THRESHOLD, ColourFinding, test_surface_colour
-from r2s.diagnose.stats.edge_alignment import MIN_SHIFT_PX, EdgeFinding, test_edge_alignment
+from r2s.diagnose.stats.edge_alignment import (MIN_SHIFT_PX, MIN_TURN_DEG, EdgeFinding,
+                                               test_edge_alignment)
 from r2s.diagnose.stats.structure_test import StructureFinding, test_structure
 
 
@@ -58,6 +59,7 @@ class LoopConfig:
     structure_alpha: float = 1e-3
     colour_z: float = Z_THRESHOLD
     edge_shift_px: float = MIN_SHIFT_PX
+    edge_turn_deg: float = MIN_TURN_DEG
     joint_refit: bool = True
     jump_tolerance_m: float = 0.02
     lookahead: bool = True
@@ -315,18 +317,20 @@ def _final_tests(res: Residuals, cfg: LoopConfig) -> tuple:
     image and the masks not line up? ``unexplained`` is the first structured finding."""
     structure = test_structure(res, cfg.structure_alpha)
     colour = test_surface_colour(res, cfg.colour_z)
-    edges = _edge_test(res, cfg.edge_shift_px)
+    edges = _edge_test(res, cfg.edge_shift_px, cfg.edge_turn_deg)
     found = [f for f in (structure, colour, edges) if f is not None and f.structured]
     return (found[0] if found else None), structure, colour, edges
 
 
-def _edge_test(res: Residuals, min_shift_px: float) -> Optional[EdgeFinding]:
+def _edge_test(res: Residuals, min_shift_px: float, min_turn_deg: float
+               ) -> Optional[EdgeFinding]:
     """Depth-to-colour registration test (r2s.diagnose.stats.edge_alignment) on the
     observation as the current model corrects it; None without a depth map or masks."""
     dm = res.depth_map
     if dm is None or dm.masks is None:
         return None
-    return test_edge_alignment(dm.depth_m, dm.masks, min_shift_px=min_shift_px)
+    return test_edge_alignment(dm.depth_m, dm.masks, min_shift_px=min_shift_px,
+                               min_turn_deg=min_turn_deg)
 
 
 def release(result: LoopResult, keep_copy: bool) -> Optional[Any]:

@@ -27,7 +27,8 @@ from r2s.diagnose.effects import all_effects
 from r2s.diagnose.stats.camera_or_table import camera_or_table
 from r2s.diagnose.plots import colour_figure, edge_figure, residual_figure, structure_figure
 from r2s.diagnose.stats.colour_test import Z_THRESHOLD as COLOUR_Z, ColourFinding
-from r2s.diagnose.stats.edge_alignment import MIN_SHIFT_PX as EDGE_SHIFT_PX, EdgeFinding
+from r2s.diagnose.stats.edge_alignment import (MIN_SHIFT_PX as EDGE_SHIFT_PX,
+                                               MIN_TURN_DEG as EDGE_TURN_DEG, EdgeFinding)
 from r2s.diagnose.stats.ranking import NoiseBar
 from r2s.diagnose.report import ReportInput, build_report, markdown
 from r2s.diagnose.measure.scene_dir import MeasureSettings
@@ -82,6 +83,12 @@ class Options(StageOptions):
                                  "objects agreeing) are reported as a depth-to-colour "
                                  "misregistration (diagnose/stats/edge_alignment.py; clean "
                                  "scenes reach 1.2).")
+    edge_turn_deg: float = Field(EDGE_TURN_DEG, gt=0, description="The depth image's edges "
+                                 "lying turned this many degrees or more against the masks' "
+                                 "edges about the image centre, turning raising the count of "
+                                 "outline pixels on a depth edge by 10 % or more, are reported "
+                                 "as a depth-to-colour misregistration (clean scenes reach "
+                                 "0.33 deg at such a gain).")
     table_shape_sigma_m: float = Field(0.0004, gt=0, description="Noise of a table tile's "
                                                                  "mean distance to its plane.")
     rerun: bool = Field(True, description="Rerun the affected stages on a copy of the scene to "
@@ -212,7 +219,7 @@ def loop_config(options: Options) -> LoopConfig:
                if options.noise_draws > 0 else None),
         rerun=options.rerun, rerun_stages=options.rerun_stages or None,
         structure_alpha=options.structure_alpha, colour_z=options.colour_z,
-        edge_shift_px=options.edge_shift_px,
+        edge_shift_px=options.edge_shift_px, edge_turn_deg=options.edge_turn_deg,
         joint_refit=options.joint_refit, jump_tolerance_m=options.jump_tolerance_m,
         lookahead=options.lookahead)
 

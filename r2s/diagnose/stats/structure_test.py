@@ -8,7 +8,10 @@ residual is described by the generic feature that explains the most of it: image
 image row, squared radius from the principal point, depth, view-ray cosine to the
 surface normal (orientation), grey level (colour): a quadratic in each, its share of the
 tile means' sum of squares (R^2) and the size of the pattern (the fitted curve's range
-over the tiles, mm).
+over the tiles, mm). A pattern no single feature carries, such as a depth error that grows
+across the columns (the table bends by the column times the row), is described by a
+quadratic in column and row together (``position``, six terms), when it explains at
+least ``POSITION_MARGIN`` more than the best single feature.
 """
 
 from __future__ import annotations
@@ -24,7 +27,11 @@ from r2s.diagnose.data import Residuals
 FEATURES = ("column", "row", "radius2", "depth", "view_cosine", "grey")
 FEATURE_TEXT = {"column": "image column", "row": "image row",
                 "radius2": "squared radius from the principal point", "depth": "depth",
-                "view_cosine": "surface orientation (view-ray cosine)", "grey": "grey level"}
+                "view_cosine": "surface orientation (view-ray cosine)", "grey": "grey level",
+                "position": "image position (column and row together)"}
+POSITION_MARGIN = 0.2
+"""The joint quadratic in column and row (six terms against three) describes the pattern
+only when its R^2 is at least this above the best single feature's."""
 
 
 @dataclass(frozen=True)
@@ -44,6 +51,8 @@ class StructureFinding:
     tiles_mm: tuple = ()
     centres_px: tuple = ()
     feature_values: dict = field(default_factory=dict, repr=False)
+    position_fit_mm: tuple = ()
+    """Per tile, the joint quadratic in column and row fitted to the residual (mm)."""
 
     @property
     def pattern(self) -> str:
@@ -75,6 +84,23 @@ def _quadratic_r2(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     return float(1.0 - np.sum((y - fitted) ** 2) / total), float(np.ptp(fitted))
 
 
+def _position_fit(column: np.ndarray, row: np.ndarray, y: np.ndarray
+                  ) -> tuple[float, float, np.ndarray]:
+    """(R^2 about zero, range, fitted values) of ``y`` on a quadratic in column and row
+    together: 1, c, r, c^2, c r, r^2 (standardised)."""
+    if len(y) < 8 or np.ptp(column) < 1e-12 or np.ptp(row) < 1e-12:
+        return 0.0, 0.0, np.zeros_like(y)
+    c = (column - column.mean()) / np.std(column)
+    r = (row - row.mean()) / np.std(row)
+    A = np.stack([np.ones_like(c), c, r, c * c, c * r, r * r], axis=1)
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    fitted = A @ coef
+    total = float(np.sum(y * y))
+    if total <= 0:
+        return 0.0, 0.0, fitted
+    return float(1.0 - np.sum((y - fitted) ** 2) / total), float(np.ptp(fitted)), fitted
+
+
 def test_structure(res: Residuals, alpha: float = 1e-3) -> Optional[StructureFinding]:
     """Chi-square test of the table's tile residuals and their best generic explanation
     (None without table points)."""
@@ -95,6 +121,13 @@ def test_structure(res: Residuals, alpha: float = 1e-3) -> Optional[StructureFin
             continue
         r2[name], ranges[name] = _quadratic_r2(np.asarray(tiles.feature[name]), y)
     best = max(r2, key=r2.get) if r2 else None
+    fitted = np.zeros_like(y)
+    if "column" in tiles.feature and "row" in tiles.feature:
+        r2["position"], ranges["position"], fitted = _position_fit(
+            np.asarray(tiles.feature["column"], dtype=np.float64),
+            np.asarray(tiles.feature["row"], dtype=np.float64), y)
+        if best is not None and r2["position"] >= r2[best] + POSITION_MARGIN:
+            best = "position"
     return StructureFinding(
         chi2=stat, dof=dof, p_value=p, alpha=alpha, structured=bool(p < alpha),
         amplitude_mm=float(np.max(np.abs(y)) * 1000.0), r2_by_feature=r2, best_feature=best,
@@ -102,4 +135,5 @@ def test_structure(res: Residuals, alpha: float = 1e-3) -> Optional[StructureFin
         best_range_mm=ranges.get(best, 0.0) * 1000.0 if best else 0.0,
         tiles_mm=tuple((y * 1000.0).tolist()),
         centres_px=tuple(map(tuple, np.asarray(tiles.centre_px).tolist())),
-        feature_values={k: np.asarray(v).tolist() for k, v in tiles.feature.items()})
+        feature_values={k: np.asarray(v).tolist() for k, v in tiles.feature.items()},
+        position_fit_mm=tuple((fitted * 1000.0).tolist()))
