@@ -66,6 +66,10 @@ CASES: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
     "depth_shift": ({}, ()),
     "radial_depth": ({}, ()),
     "scale+radial": ({"depth_scale": "1.04"}, ("depth_scale",)),
+    "lens+scale": ({"lens_k1": "-0.12", "depth_scale": "1.04"},
+                   ("lens_distortion", "depth_scale")),
+    "camera+offset": ({"camera_rotation_deg": "3", "depth_offset_m": "0.01"},
+                      ("camera_rotation", "depth_offset")),
     "column_depth": ({}, ()),
     "depth_rotation": ({}, ()),
 }
@@ -493,6 +497,12 @@ def fitted_size(effect: str, fits: list[dict]) -> Optional[float]:
     if effect == "depth_offset":
         return float(sum(p.get("offset_m", 0.0) for p in params))
     if effect in ("camera_rotation", "table_tilt"):
+        if all("axis_world" in p for p in params):  # turns composed, not their angles added
+            turn = Rotation.identity()
+            for p in params:
+                turn = Rotation.from_rotvec(np.deg2rad(p.get("angle_deg", 0.0))
+                                            * np.asarray(p["axis_world"], dtype=float)) * turn
+            return float(np.rad2deg(turn.magnitude()))
         return float(sum(p.get("angle_deg", 0.0) for p in params))
     if effect == "lens_distortion":
         return float(sum(p.get("k1", 0.0) for p in params))

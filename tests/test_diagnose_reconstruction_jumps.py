@@ -14,7 +14,7 @@ import trimesh
 
 from r2s.diagnose.measure.reconstruction_jumps import reconstruction_jumps
 from r2s.diagnose.stats.steps import StepJudgement
-from r2s.runner.diagnose_loop import LoopConfig, _unless_jumped
+from r2s.runner.diagnose_loop import LoopConfig, _FlipRetries, _unless_jumped
 
 
 def _init_dir(root: Path, centres: dict[int, tuple], points_shift_z: float) -> Path:
@@ -70,7 +70,8 @@ def test_the_loop_reverts_a_step_whose_rerun_jumped(tmp_path):
     kept = StepJudgement(("registration",), 37.1, 31.0, 30.7, True,
                          "the claimed residual fell 37.1 -> 30.7 (predicted 31.0)")
     out = _unless_jumped(kept, before, after, ["init"], LoopConfig())
-    assert not out.kept and out.reason.startswith("reverted: the claimed residual fell")
+    assert not out.kept and out.flipped
+    assert out.reason.startswith("reverted: the claimed residual fell")
     assert "object 2's reconstruction moved 50 mm" in out.reason
     # off, or no init rerun: the judgement stands
     assert _unless_jumped(kept, before, after, ["init"], LoopConfig(jump_tolerance_m=0)).kept
@@ -87,3 +88,23 @@ def test_the_loop_reverts_a_step_whose_rerun_jumped(tmp_path):
     steady = tmp_path / "steady"
     _init_dir(steady, {1: (0.3, 0.0, 0.024), 2: (0.6, 0.0, 0.024)}, 0.004)
     assert _unless_jumped(kept, before, steady, ["init"], LoopConfig()).kept
+
+
+def test_an_effect_reverted_for_a_flip_is_tried_once_more_after_a_kept_step():
+    flip = StepJudgement(("table_shape",), 311.0, 19.4, 18.7, False, "reverted: flipped",
+                         flipped=True)
+    missed = StepJudgement(("registration",), 40.0, 30.0, 39.5, False, "reverted: missed")
+    retries, excluded, notes = _FlipRetries(), set(), []
+    for effect, judgement in (("lens_distortion", flip), ("depth_offset", missed)):
+        excluded.add(effect)
+        retries.after_reverted(effect, judgement)
+    retries.after_kept("depth_scale", excluded, notes)
+    # the flipped one is back in the ranking, the one whose residual stayed is not
+    assert excluded == {"depth_offset"}
+    assert notes == ["lens_distortion is tried again with depth_scale in the model: its first "
+                     "rerun flipped an object's fit off its support"]
+    # a second flip of the same effect is final
+    excluded.add("lens_distortion")
+    retries.after_reverted("lens_distortion", flip)
+    retries.after_kept("camera_rotation", excluded, notes)
+    assert excluded == {"depth_offset", "lens_distortion"} and len(notes) == 1

@@ -196,7 +196,7 @@ def _unless_jumped(judgement: StepJudgement, before_root: Path, after_root: Path
              if j.lifts_off()]
     if not jumps:
         return judgement
-    return replace(judgement, kept=False,
+    return replace(judgement, kept=False, flipped=True,
                    reason=f"reverted: {judgement.reason}, but {jumps[0].describe()} in the "
                           "rerun: a fit that flipped, not the effect")
 
@@ -234,6 +234,30 @@ def _joint_refit(root: Path, settings: MeasureSettings, cfg: LoopConfig, copies:
     return step, after, gt_after, copy, increments
 
 
+@dataclass
+class _FlipRetries:
+    """An effect reverted because its rerun flipped an object's fit off its support
+    (:func:`_unless_jumped`) is tried once more after a later step is kept: the flip can be
+    the doing of an effect not yet in the model (a 75-point box prior flipped when a lens
+    was corrected with a 4 % depth scale still in the depth; with the scale kept, the lens
+    is the same fit without the flip)."""
+
+    pending: set = field(default_factory=set)
+    retried: set = field(default_factory=set)
+
+    def after_reverted(self, effect: str, judgement: StepJudgement) -> None:
+        if judgement.flipped and effect not in self.retried:
+            self.pending.add(effect)
+
+    def after_kept(self, effect: str, excluded: set, notes: list) -> None:
+        for name in sorted(self.pending):
+            notes.append(f"{name} is tried again with {effect} in the model: its first rerun "
+                         "flipped an object's fit off its support")
+        excluded -= self.pending
+        self.retried |= self.pending
+        self.pending.clear()
+
+
 def run_loop(root: Path, settings: MeasureSettings, cfg: LoopConfig,
              effects: dict[str, Effect], model: dict,
              progress: ProgressFn = silent_progress) -> LoopResult:
@@ -246,6 +270,7 @@ def run_loop(root: Path, settings: MeasureSettings, cfg: LoopConfig,
     steps: list[Step] = []
     rounds: list[Round] = []
     excluded: set[str] = set()
+    retries = _FlipRetries()
     notes: list[str] = []
     copies = _Copies()
     stages: list[str] = []
@@ -284,8 +309,10 @@ def run_loop(root: Path, settings: MeasureSettings, cfg: LoopConfig,
                 kept.append(fit)
                 current, gt_now, stages = after, gt_after, step.stages
                 copies.keep(copy)
+                retries.after_kept(fit.effect, excluded, notes)
             else:
                 excluded.add(fit.effect)
+                retries.after_reverted(fit.effect, step.judgement)
                 copies.drop(copy)
         if cfg.rerun and cfg.joint_refit and len(kept) >= 2:
             progress("joint refit of interacting effects", 0.92)

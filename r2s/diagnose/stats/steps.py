@@ -51,12 +51,15 @@ class StepJudgement:
     claimed_after: Optional[float]
     kept: bool
     reason: str
+    flipped: bool = False
+    """Reverted because the rerun flipped an object's fit off its support, not because the
+    claimed residual stayed."""
 
     def summary(self) -> dict:
         return {"claimed_blocks": list(self.claimed), "claimed_sse_before": self.claimed_before,
                 "claimed_sse_predicted": self.claimed_predicted,
                 "claimed_sse_after": self.claimed_after, "kept": self.kept,
-                "reason": self.reason}
+                "reason": self.reason, "flipped": self.flipped}
 
 
 def judge_step(fit: EffectFit, before: Residuals, after: Optional[Residuals],
