@@ -9,7 +9,7 @@ from scipy import ndimage
 
 from helpers_init import SynthObject, pose, render_view, rotation
 from r2s.geometry.camera import backproject, intrinsics, look_at
-from r2s.geometry.completion import (RELAXED_BRIDGE, complete_from_points,
+from r2s.geometry.completion import (NO_BRIDGE, RELAXED_BRIDGE, complete_from_points,
                                      footprint_sdf)
 from r2s.geometry.raycast import raycast_view
 
@@ -323,6 +323,26 @@ def test_the_looser_bridge_guards_span_a_gap_the_strict_ones_leave_to_the_table(
     assert _lowest_at(strict, 0.0) == pytest.approx(0.0, abs=0.004)
     assert _lowest_at(loose, 0.0) == pytest.approx(0.04, abs=0.004)
     assert _lowest_at(loose, -0.07) == pytest.approx(0.04, abs=0.004)
+
+
+def test_a_bridged_completion_and_its_alternative_reaching_the_table():
+    """A thin board (top seen at 60 mm) across two 40 mm boxes is bridged by the strict
+    guards: its middle ends 20 mm under its top, over the gap. With the guards that never
+    bridge (init's alternative for a bridged object, tried by physopt where the bridged
+    one cannot rest near where it was seen) the middle reaches the table (within a cell,
+    4 mm), and over the boxes it still rests on them."""
+    rng = np.random.default_rng(7)
+    n = 6000
+    board = np.c_[rng.uniform(-0.1, 0.1, n), rng.uniform(-0.03, 0.03, n), np.full(n, 0.06)]
+    boxes = [trimesh.creation.box((0.06, 0.08, 0.04)).apply_translation([x, 0.0, 0.02])
+             for x in (-0.07, 0.07)]
+    strict = complete_from_points(board, [0, 0, 0], [0, 0, 1], under_meshes_world=boxes)
+    table = complete_from_points(board, [0, 0, 0], [0, 0, 1], under_meshes_world=boxes,
+                                 bridge_guards=NO_BRIDGE)
+    assert strict.bridged and not table.bridged
+    assert _lowest_at(strict, 0.0) == pytest.approx(0.04, abs=0.004)
+    assert _lowest_at(table, 0.0) == pytest.approx(0.0, abs=0.004)
+    assert _lowest_at(table, -0.07) == pytest.approx(0.04, abs=0.004)
 
 
 def _lowest_at(done, x: float) -> float:

@@ -78,19 +78,21 @@ def test_a_prior_that_rests_only_far_away_gives_way_to_its_completion(tmp_path: 
                                          "pooled_iou_after": None, "kept": True}
 
 
-def test_a_completed_object_gives_way_to_its_bridged_completion_only(tmp_path: Path):
+def test_a_completed_object_gives_way_to_its_second_completion_only(tmp_path: Path):
     """A completed object (not a prior) that rests only far from where it was seen is
-    swapped for init's second completion when that is a completion lying across others
-    (``alternate: "bridged completion"``, r2s/stages/init.py); any other alternative of a
-    completed object is not a candidate, and the object stays flagged."""
-    root = _scene(tmp_path / "bridged", source="completed",
-                  alternate={"alternate": "bridged completion"})
-    result = run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False))
-    assert result.summary["flagged_objects"] == 0
-    obj = read_state(root / "physopt").object(1)
-    assert np.linalg.norm(obj.pose[:3, 3] - [0.0, 0.0, CUBE_EDGE_M / 2]) < 0.002
-    log = json.loads((root / "physopt" / "log.json").read_text())
-    assert log["swap_to_completion"]["shapes"] == {"1": "bridged completion"}
+    swapped for init's second completion, lying across others or reaching the table
+    (``alternate: "bridged completion"`` or ``"unbridged completion"``,
+    r2s/stages/init.py); any other alternative of a completed object is not a candidate,
+    and the object stays flagged."""
+    for kind in ("bridged completion", "unbridged completion"):
+        root = _scene(tmp_path / kind.replace(" ", "_"), source="completed",
+                      alternate={"alternate": kind})
+        result = run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False))
+        assert result.summary["flagged_objects"] == 0
+        obj = read_state(root / "physopt").object(1)
+        assert np.linalg.norm(obj.pose[:3, 3] - [0.0, 0.0, CUBE_EDGE_M / 2]) < 0.002
+        log = json.loads((root / "physopt" / "log.json").read_text())
+        assert log["swap_to_completion"]["shapes"] == {"1": kind}
     plain = _scene(tmp_path / "plain", source="completed")
     result = run_stage(PHYSOPT, plain, PhysOptions(use_diffsim=False))
     assert result.summary["flagged_objects"] == 1

@@ -111,6 +111,9 @@ another clamp and a cup in the realistic benchmark's scene_05 is 0.61 of its hei
 where it rests, and its centre of mass lies 0.7 mm (a quarter of a cell) outside what
 carries it; as the first completion these guards took a cup leaning on a banana (scene_02)
 off the table, so they only make the alternative."""
+NO_BRIDGE = BridgeGuards(max_thickness_ratio=0.0)
+"""Guards that never bridge (every thickness is above zero): the completion whose free
+columns reach down to the table, the alternative init keeps for a bridged object."""
 EXTEND_FRACTION = 0.0
 EXTEND_MAX_M = 0.05
 HULL_TOLERANCE_M = 1e-9

@@ -60,7 +60,7 @@ from r2s.geometry.camera import backproject, instance_points, transform_points
 from r2s.geometry.carving import carve_view
 from r2s.geometry.colors import color_mesh_from_image, has_appearance
 from r2s.geometry.border_extension import border_cap_points
-from r2s.geometry.completion import (RELAXED_BRIDGE, STRICT_BRIDGE, BridgeGuards,
+from r2s.geometry.completion import (NO_BRIDGE, RELAXED_BRIDGE, STRICT_BRIDGE, BridgeGuards,
                                       CompletedShape, complete_from_points)
 from r2s.geometry.hidden_overlap import lift_onto_plane, sunk_too_far, yield_hidden_overlaps
 from r2s.geometry.hidden_partition import Claimant, exclusion, overlaps
@@ -294,8 +294,10 @@ class Options(StageOptions):
         True, description="When a completed object lying across others is not bridged "
                            "only because of the strict guards, also complete it with "
                            "looser ones (geometry/completion.py RELAXED_BRIDGE) into "
-                           "init/alternates/, for physopt to swap in where the first "
-                           "completion cannot rest near where it was seen.")
+                           "init/alternates/; when it is bridged, also complete it "
+                           "unbridged (its free columns reaching down to the table); for "
+                           "physopt to swap in where the first completion cannot rest "
+                           "near where it was seen.")
     completion_extend_fraction: float = Field(
         0.0, ge=0, description="Sweep a completed object's footprint towards the camera "
                                "into space hidden by nearer things, by up to this fraction "
@@ -595,13 +597,14 @@ def _choose_prior_or_completion(scene: InputScene, observed: dict, shapes: dict[
 
 def _save_alternates(out: Path, alternates: dict[int, tuple], scene: InputScene,
                      plane: PlaneFit, bridged: Optional[dict[int, tuple]] = None) -> None:
-    """``init/alternates/``: the completion of every prior kept and the loosely bridged
-    completion of the completed objects that have one (``bridged``; ``meshes/<id>.glb``,
-    object frame, and ``state.json`` with its pose), for physopt to swap in where the
-    object as init keeps it can rest only far from where it was seen. The second kind
-    carries ``alternate: "bridged completion"``."""
-    loose = set(bridged or {})
-    alternates = {**alternates, **(bridged or {})}
+    """``init/alternates/``: the completion of every prior kept and the second completion
+    of the completed objects that have one (``bridged``: id -> (mesh, pose, kind);
+    ``meshes/<id>.glb``, object frame, and ``state.json`` with its pose), for physopt to
+    swap in where the object as init keeps it can rest only far from where it was seen.
+    The second kind carries ``alternate``: ``"bridged completion"`` or ``"unbridged
+    completion"``."""
+    kinds = {i: v[2] for i, v in (bridged or {}).items()}
+    alternates = {**alternates, **{i: v[:2] for i, v in (bridged or {}).items()}}
     if not alternates:
         return
     (out / INIT_ALTERNATES_DIR / "meshes").mkdir(parents=True, exist_ok=True)
@@ -609,7 +612,7 @@ def _save_alternates(out: Path, alternates: dict[int, tuple], scene: InputScene,
     objects = []
     for i, (mesh, pose) in sorted(alternates.items()):
         save_mesh(mesh, out / INIT_ALTERNATES_DIR / "meshes" / f"{i}.glb")
-        extra = {"alternate": "bridged completion"} if i in loose else {}
+        extra = {"alternate": kinds[i]} if i in kinds else {}
         objects.append(ObjectState(id=i, label=labels[i], mesh=f"meshes/{i}.glb",
                                    world_from_object=np.asarray(pose).tolist(),
                                    source="completed", **extra))
@@ -713,7 +716,7 @@ def _final_shapes(ctx: StageContext, scene: InputScene, observed: dict,
     """In place in ``shapes``, the last changes once every object has its shape: hidden
     space shared by completed objects, hidden overlaps of priors, then the completed
     outlines snapped onto the masks. Returns the priors' hidden-overlap records (by id)
-    and id -> (mesh, world_from_object) of the completed objects' second completions
+    and id -> (mesh, world_from_object, kind) of the completed objects' second completions
     (:func:`_partition_hidden`), snapped the same way."""
     bridged = {}
     if o.completion_partition_hidden:
@@ -726,10 +729,10 @@ def _final_shapes(ctx: StageContext, scene: InputScene, observed: dict,
     if o.completion_snap_outline_px > 0:
         ctx.progress("outlines of completed objects", 0.93)
         _snap_completions(scene, shapes, plane, o.completion_snap_outline_px)
-        for i, (mesh, pose) in list(bridged.items()):
+        for i, (mesh, pose, kind) in list(bridged.items()):
             alone = {**shapes, i: (mesh, pose, None)}
             _snap_completions(scene, alone, plane, o.completion_snap_outline_px, only=i)
-            bridged[i] = alone[i][:2]
+            bridged[i] = (*alone[i][:2], kind)
     return yielded, bridged
 
 
@@ -799,8 +802,11 @@ def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple
     An object completed again may lie across the others (its base on their tops). Where
     the strict guards refuse that and the looser ones
     (:data:`r2s.geometry.completion.RELAXED_BRIDGE`, with ``completion_bridge_alternative``)
-    accept it, the loosely bridged completion is returned, id -> (mesh, world_from_object):
-    physopt swaps it in only where the first cannot rest near where it was seen."""
+    accept it, the loosely bridged completion is returned; where the strict guards bridge
+    it, the completion not bridged (its free columns reaching down to the table: a ball
+    carried by a drill's sloping side in the grid rolls off it, where the truth rests on
+    something hidden); id -> (mesh, world_from_object, kind). physopt swaps it in only where
+    the first cannot rest near where it was seen."""
     posed = {}
     for obj_id, (mesh, world_from_object, _) in shapes.items():
         m = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
@@ -821,11 +827,15 @@ def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple
         shape = _complete_shape(scene, spec, observed, plane, o, exclude=redo[spec.id],
                                 under=under)
         shapes[spec.id] = (shape.mesh, shape.world_from_object, None)
-        if o.completion_bridge_alternative and under and not shape.bridged:
-            loose = _complete_shape(scene, spec, observed, plane, o, exclude=redo[spec.id],
-                                    under=under, bridge_guards=RELAXED_BRIDGE)
-            if loose.bridged:
-                bridged[spec.id] = (loose.mesh, loose.world_from_object)
+        if not (o.completion_bridge_alternative and under):
+            continue
+        other = _complete_shape(scene, spec, observed, plane, o, exclude=redo[spec.id],
+                                under=under, bridge_guards=(NO_BRIDGE if shape.bridged
+                                                            else RELAXED_BRIDGE))
+        if other.bridged != shape.bridged:
+            bridged[spec.id] = (other.mesh, other.world_from_object,
+                                "bridged completion" if other.bridged
+                                else "unbridged completion")
     return bridged
 
 

@@ -174,8 +174,9 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
                             convex: ConvexParams, solved: Solved, log: dict
                             ) -> Optional[tuple]:
     """Solve again with init's alternative shape (``init/alternates/``) in place of every
-    flagged object that has one: a prior's completion, or a completed object's completion
-    lying across others (``alternate: "bridged completion"``; ``seen``: id -> where each
+    flagged object that has one: a prior's completion, or a completed object's second
+    completion, lying across others or not (``alternate: "bridged completion"`` or
+    ``"unbridged completion"``; ``seen``: id -> where each
     object was seen, for the first solve);
     (state, pieces, solved, log, mesh files) of that solution when
     :func:`r2s.physopt.swap_choice.prefer_swapped` prefers it, else None (``log`` then
@@ -188,7 +189,7 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
     alternates = corrected_state(read_state(alt_dir), ctx.manifest.model)
     swap = {o.id: o for o in alternates.objects
             if o.id in solved.flags and o.id in meshes
-            and (state.object(o.id).source == "prior" or _bridged_alternate(o))}
+            and (state.object(o.id).source == "prior" or _second_completion(o))}
     if not swap:
         return None
     ctx.progress(f"objects {sorted(swap)}: solving again with their completions", 0.6)
@@ -212,8 +213,8 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
                             _pooled_iou(view, meshes2, solved2.params))
     keep = prefer_swapped(before, after)
     record = {"ids": sorted(swap),
-              "shapes": {str(i): ("bridged completion" if _bridged_alternate(o)
-                                  else "completion") for i, o in sorted(swap.items())},
+              "shapes": {str(i): (o.alternate if _second_completion(o) else "completion")
+                         for i, o in sorted(swap.items())},
               "flagged_before": sorted(solved.flags),
               "flagged_after": sorted(solved2.flags),
               "moving_before": sorted(opt.moving(solved.drift)),
@@ -229,10 +230,10 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
     return state2, pieces2, solved2, log2, files
 
 
-def _bridged_alternate(o: ObjectState) -> bool:
+def _second_completion(o: ObjectState) -> bool:
     """Whether init's alternative ``o`` is a completed object's second completion, lying
-    across others (r2s/stages/init.py ``_partition_hidden``)."""
-    return getattr(o, "alternate", None) == "bridged completion"
+    across others or not (r2s/stages/init.py ``_partition_hidden``)."""
+    return getattr(o, "alternate", None) in ("bridged completion", "unbridged completion")
 
 
 def _pooled_iou(view: Optional[InputScene], meshes: dict, params: dict) -> Optional[float]:
