@@ -266,19 +266,9 @@ def add_depth_rotation(scene: Path, angle_deg: float = DEPTH_ROTATION_DEG) -> No
     gt/ only): the depth image turned ``angle_deg`` about the image centre, clockwise as the
     image is shown (rows down; nearest pixel); pixels turned in from outside read
     nothing."""
-    def transform(depth: np.ndarray) -> np.ndarray:
-        h, w = depth.shape
-        v, u = np.mgrid[0:h, 0:w].astype(np.float64)
-        a = np.deg2rad(angle_deg)
-        du, dv = u - (w - 1) / 2, v - (h - 1) / 2
-        su = np.rint(np.cos(a) * du + np.sin(a) * dv + (w - 1) / 2).astype(int)
-        sv = np.rint(-np.sin(a) * du + np.cos(a) * dv + (h - 1) / 2).astype(int)
-        inside = (su >= 0) & (su < w) & (sv >= 0) & (sv < h)
-        out = np.full_like(depth, np.nan)
-        out[inside] = depth[sv[inside], su[inside]]
-        return out
+    from r2s.synth.depth_registration import turned_about_centre
 
-    _rewrite_depth(scene, transform)
+    _rewrite_depth(scene, lambda depth: turned_about_centre(depth, angle_deg))
     _record_injected(scene, "depth_rotation", {"angle_deg": angle_deg})
 
 

@@ -25,6 +25,7 @@ sys.path.insert(0, str(REPO))
 
 from r2s.diagnose.stats.edge_alignment import test_edge_alignment  # noqa: E402
 from r2s.io.input_scene import load_input  # noqa: E402
+from r2s.synth.depth_registration import turned_about_centre  # noqa: E402
 
 
 def moved_right(depth_m: np.ndarray, shift_px: int) -> np.ndarray:
@@ -33,23 +34,6 @@ def moved_right(depth_m: np.ndarray, shift_px: int) -> np.ndarray:
         return depth_m
     out = np.full_like(depth_m, np.nan)
     out[:, shift_px:] = depth_m[:, :-shift_px]
-    return out
-
-
-def turned(depth_m: np.ndarray, turn_deg: float) -> np.ndarray:
-    """(H, W) depth turned ``turn_deg`` about the image centre (clockwise as shown, rows
-    down; nearest pixel), what turns in from outside NaN."""
-    if not turn_deg:
-        return depth_m
-    h, w = depth_m.shape
-    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
-    a = np.deg2rad(turn_deg)
-    du, dv = u - (w - 1) / 2, v - (h - 1) / 2
-    su = np.rint(np.cos(a) * du + np.sin(a) * dv + (w - 1) / 2).astype(int)
-    sv = np.rint(-np.sin(a) * du + np.cos(a) * dv + (h - 1) / 2).astype(int)
-    inside = (su >= 0) & (su < w) & (sv >= 0) & (sv < h)
-    out = np.full_like(depth_m, np.nan)
-    out[inside] = depth_m[sv[inside], su[inside]]
     return out
 
 
@@ -63,7 +47,7 @@ def main() -> None:
     shifts = []
     for root in args.scenes:
         scene = load_input(root)
-        depth = turned(moved_right(scene.depth_m, args.shift_px), args.turn_deg)
+        depth = turned_about_centre(moved_right(scene.depth_m, args.shift_px), args.turn_deg)
         found = test_edge_alignment(depth, scene.masks)
         if found is None:
             print(f"{root}: fewer than 3 objects with outlines on depth edges")

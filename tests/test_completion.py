@@ -311,11 +311,7 @@ def test_the_looser_bridge_guards_span_a_gap_the_strict_ones_leave_to_the_table(
     a tall thing beside low ones, and its middle reaches the table; the looser ones
     (0.7), which make init's second completion, span the gap with its underside at the
     boxes' top (within a cell, 4 mm). ``bridged`` says which happened."""
-    rng = np.random.default_rng(6)
-    n = 6000
-    board = np.c_[rng.uniform(-0.1, 0.1, n), rng.uniform(-0.03, 0.03, n), np.full(n, 0.10)]
-    boxes = [trimesh.creation.box((0.06, 0.08, 0.04)).apply_translation([x, 0.0, 0.02])
-             for x in (-0.07, 0.07)]
+    board, boxes = _board_over_two_boxes(0.10, seed=6)
     strict = complete_from_points(board, [0, 0, 0], [0, 0, 1], under_meshes_world=boxes)
     loose = complete_from_points(board, [0, 0, 0], [0, 0, 1], under_meshes_world=boxes,
                                  bridge_guards=RELAXED_BRIDGE)
@@ -331,11 +327,7 @@ def test_a_bridged_completion_and_its_alternative_reaching_the_table():
     bridge (init's alternative for a bridged object, tried by physopt where the bridged
     one cannot rest near where it was seen) the middle reaches the table (within a cell,
     4 mm), and over the boxes it still rests on them."""
-    rng = np.random.default_rng(7)
-    n = 6000
-    board = np.c_[rng.uniform(-0.1, 0.1, n), rng.uniform(-0.03, 0.03, n), np.full(n, 0.06)]
-    boxes = [trimesh.creation.box((0.06, 0.08, 0.04)).apply_translation([x, 0.0, 0.02])
-             for x in (-0.07, 0.07)]
+    board, boxes = _board_over_two_boxes(0.06, seed=7)
     strict = complete_from_points(board, [0, 0, 0], [0, 0, 1], under_meshes_world=boxes)
     table = complete_from_points(board, [0, 0, 0], [0, 0, 1], under_meshes_world=boxes,
                                  bridge_guards=NO_BRIDGE)
@@ -343,6 +335,17 @@ def test_a_bridged_completion_and_its_alternative_reaching_the_table():
     assert _lowest_at(strict, 0.0) == pytest.approx(0.04, abs=0.004)
     assert _lowest_at(table, 0.0) == pytest.approx(0.0, abs=0.004)
     assert _lowest_at(table, -0.07) == pytest.approx(0.04, abs=0.004)
+
+
+def _board_over_two_boxes(top_m: float, seed: int) -> tuple[np.ndarray, list]:
+    """(6000, 3) points of a board's top seen at ``top_m`` (200 x 60 mm, world frame, the
+    table at z = 0) and two 60 x 80 x 40 mm boxes under its ends (centres at x = +-70 mm)."""
+    rng = np.random.default_rng(seed)
+    n = 6000
+    board = np.c_[rng.uniform(-0.1, 0.1, n), rng.uniform(-0.03, 0.03, n), np.full(n, top_m)]
+    boxes = [trimesh.creation.box((0.06, 0.08, 0.04)).apply_translation([x, 0.0, 0.02])
+             for x in (-0.07, 0.07)]
+    return board, boxes
 
 
 def _lowest_at(done, x: float) -> float:

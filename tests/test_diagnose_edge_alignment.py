@@ -7,6 +7,7 @@ import numpy as np
 from r2s.diagnose.plots import edge_figure
 from r2s.diagnose.report import _decision_lines
 from r2s.diagnose.stats import edge_alignment as ea
+from r2s.synth.depth_registration import turned_about_centre
 
 BOXES = ((20, 30, 40, 70), (60, 90, 20, 50), (50, 80, 100, 140), (15, 45, 110, 130))
 """(row0, row1, col0, col1) of four objects standing 10 cm in front of the table."""
@@ -84,26 +85,11 @@ def test_the_report_names_the_pattern():
     assert "3.0 px right" in text and "misregistered" in text
 
 
-def _turned(depth: np.ndarray, turn_deg: float) -> np.ndarray:
-    """(H, W) depth turned ``turn_deg`` about the image centre, clockwise as shown (rows
-    down), nearest pixel; what turns in from outside reads nothing."""
-    h, w = depth.shape
-    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
-    a = np.deg2rad(turn_deg)
-    du, dv = u - (w - 1) / 2, v - (h - 1) / 2
-    su = np.rint(np.cos(a) * du + np.sin(a) * dv + (w - 1) / 2).astype(int)
-    sv = np.rint(-np.sin(a) * du + np.cos(a) * dv + (h - 1) / 2).astype(int)
-    inside = (su >= 0) & (su < w) & (sv >= 0) & (sv < h)
-    out = np.full_like(depth, np.nan)
-    out[inside] = depth[sv[inside], su[inside]]
-    return out
-
-
 def test_a_turned_depth_image_is_found_where_the_shifts_cancel():
     """Turned 2.5 deg, the boxes' edges move 1.5-3 px each way: no common shift, a turn."""
     for turn in (2.5, -2.5):
         depth, masks = _view()
-        finding = ea.test_edge_alignment(_turned(depth, turn), masks)
+        finding = ea.test_edge_alignment(turned_about_centre(depth, turn), masks)
         assert finding.structured and finding.turn_structured, turn
         assert abs(finding.turn_deg - turn) < 0.5, finding.turn_deg
         assert finding.turn_gain >= 1.3
