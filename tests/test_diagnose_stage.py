@@ -86,3 +86,24 @@ def test_camera_rotation_is_told_from_table_tilt_by_the_rolling_ball(tmp_path):
     assert gt["before"]["state_support_normal_error_deg"] > 2.0
     assert gt["after"]["state_support_normal_error_deg"] < 0.2
     assert load_manifest(scene / "manifest.json").model == {}
+
+
+def test_priors_init_replaced_still_measure_the_depth_scale(tmp_path):
+    """Depth read 25 % long (a mis-declared depth unit) with every prior replaced by its
+    completion in init (forced here with ``prior_choice=completion``; on a synthetic scene
+    with that error init replaced all six by itself): the registered priors kept in
+    init/replaced_priors/ still carry the scale, so it is named and fitted within 0.02
+    instead of being "not identifiable"."""
+    from r2s.runner.pipeline import build_options
+
+    scene = write_scene(tmp_path / "scene", depth_scale=1.25)
+    init = get_stage("init")
+    run_stage(init, scene, init.options_type(prior_choice="completion"))
+    assert (scene / "init" / "replaced_priors" / "state.json").is_file()
+    spec = get_stage("diagnose")
+    run_stage(spec, scene, build_options(spec, None, {"rerun": "false", "plots": "false"}))
+    rep = _report(scene)
+    assert rep["decision"] == ["depth_scale"]
+    assert "depth_scale" not in rep["not_identifiable"]
+    scale = rep["chosen"][0]["params"]["scale"] if isinstance(rep["chosen"], list) else None
+    assert scale == pytest.approx(1.25, abs=0.02)

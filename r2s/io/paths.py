@@ -34,6 +34,10 @@ PHYSOPT_COLLISION_DIR = "collision"
 INIT_ALTERNATES_DIR = "alternates"
 """init/alternates/: ``state.json`` and ``meshes/<id>.glb`` of the completions of the priors
 init kept, which physopt may swap in (r2s/stages/physopt.py)."""
+INIT_REPLACED_PRIORS_DIR = "replaced_priors"
+"""init/replaced_priors/: ``state.json`` and ``meshes/<id>.glb`` of the registered priors init
+replaced by their completions: still metric, so diagnose measures their scale
+(r2s/diagnose/measure/scene_dir.py)."""
 """physopt/collision/<id>.npz: the convex pieces physopt checked (r2s/io/pieces_file.py)."""
 GEOMOPT_LOSS_FILE = "loss.json"
 DIAGNOSE_REPORT_FILE = "report.json"

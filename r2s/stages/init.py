@@ -85,7 +85,7 @@ from r2s.scene_model import corrected_input
 from r2s.io.atomic import atomic_write_bytes
 from r2s.io.input_scene import InputScene, ObjectSpec, load_input
 from r2s.io.mesh_io import load_mesh, save_mesh
-from r2s.io.paths import INIT_ALTERNATES_DIR, ScenePaths
+from r2s.io.paths import INIT_ALTERNATES_DIR, INIT_REPLACED_PRIORS_DIR, ScenePaths
 from r2s.io.state import DEFAULT_GRAVITY, ObjectState, SceneState, SupportPlane, write_state
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.io.manifest import Manifest
@@ -533,13 +533,14 @@ def _posed(mesh: trimesh.Trimesh, world_from_object: np.ndarray) -> trimesh.Trim
 
 def _choose_prior_or_completion(scene: InputScene, observed: dict, shapes: dict[int, tuple],
                                 plane: PlaneFit, o: Options, flags: list[str]
-                                ) -> tuple[dict[int, dict], dict[int, tuple]]:
+                                ) -> tuple[dict[int, dict], dict[int, tuple], dict[int, tuple]]:
     """Per object still holding a registered prior: complete it from the observation too,
     score both against the view with every other object as it stands (so the choice does
     not depend on the order of the objects) and, by ``o.prior_choice``, keep one (in
     ``shapes``; geometry/prior_choice.py). Returns id -> {chosen, prior, completion} (the
-    scores), for the state's extra keys, and id -> (mesh, world_from_object) of the
-    completions of the priors kept (physopt may still swap them in)."""
+    scores), for the state's extra keys, id -> (mesh, world_from_object) of the
+    completions of the priors kept (physopt may still swap them in), and the same of the
+    registered priors replaced (diagnose still measures their scale)."""
     cam = scene.camera
     specs = {spec.id: spec for spec in scene.objects}
     posed = {i: _posed(mesh, pose) for i, (mesh, pose, _) in shapes.items()}
@@ -588,11 +589,13 @@ def _choose_prior_or_completion(scene: InputScene, observed: dict, shapes: dict[
             completions[i] = completion
         if flag:
             flags.append(flag)
+    replaced = {}
     for i, record in records.items():
         if record["chosen"] == "completion":
+            replaced[i] = shapes[i][:2]
             shapes[i] = (*completions[i], None)
     return records, {i: completions[i] for i, r in records.items()
-                     if r["chosen"] == "prior" and i in completions}
+                     if r["chosen"] == "prior" and i in completions}, replaced
 
 
 def _save_alternates(out: Path, alternates: dict[int, tuple], scene: InputScene,
@@ -605,18 +608,26 @@ def _save_alternates(out: Path, alternates: dict[int, tuple], scene: InputScene,
     completion"``."""
     kinds = {i: v[2] for i, v in (bridged or {}).items()}
     alternates = {**alternates, **{i: v[:2] for i, v in (bridged or {}).items()}}
-    if not alternates:
+    _save_shapes(out / INIT_ALTERNATES_DIR, alternates, scene, plane, source="completed",
+                 extra={i: {"alternate": k} for i, k in kinds.items()})
+
+
+def _save_shapes(folder: Path, shapes: dict[int, tuple], scene: InputScene, plane: PlaneFit,
+                 source: str, extra: Optional[dict[int, dict]] = None) -> None:
+    """``folder/meshes/<id>.glb`` (object frame) and ``folder/state.json`` (poses, ``source``,
+    per id the ``extra`` keys) of ``shapes``: id -> (mesh, world_from_object); nothing
+    when it is empty."""
+    if not shapes:
         return
-    (out / INIT_ALTERNATES_DIR / "meshes").mkdir(parents=True, exist_ok=True)
+    (folder / "meshes").mkdir(parents=True, exist_ok=True)
     labels = {spec.id: spec.label for spec in scene.objects}
     objects = []
-    for i, (mesh, pose) in sorted(alternates.items()):
-        save_mesh(mesh, out / INIT_ALTERNATES_DIR / "meshes" / f"{i}.glb")
-        extra = {"alternate": kinds[i]} if i in kinds else {}
+    for i, (mesh, pose) in sorted(shapes.items()):
+        save_mesh(mesh, folder / "meshes" / f"{i}.glb")
         objects.append(ObjectState(id=i, label=labels[i], mesh=f"meshes/{i}.glb",
                                    world_from_object=np.asarray(pose).tolist(),
-                                   source="completed", **extra))
-    write_state(out / INIT_ALTERNATES_DIR, SceneState(
+                                   source=source, **(extra or {}).get(i, {})))
+    write_state(folder, SceneState(
         stage="init", gravity=list(DEFAULT_GRAVITY), support=_support_plane(plane),
         objects=objects))
 
@@ -1012,7 +1023,9 @@ def run(ctx: StageContext) -> dict:
     ious = _fit_priors(scene, priors, shapes, plane, o)
     _fallback_to_completion(scene, observed, shapes, ious, plane, o, flags)
     ctx.progress("prior or completion", 0.85)
-    choices, alternates = _choose_prior_or_completion(scene, observed, shapes, plane, o, flags)
+    choices, alternates, replaced = _choose_prior_or_completion(scene, observed, shapes, plane,
+                                                                o, flags)
+    _save_shapes(out / INIT_REPLACED_PRIORS_DIR, replaced, scene, plane, source="prior")
     yielded, bridged = _final_shapes(ctx, scene, observed, shapes, plane, o)
     _save_alternates(out, alternates, scene, plane, bridged)
     objects: list[ObjectState] = []

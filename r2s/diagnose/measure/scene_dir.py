@@ -35,7 +35,7 @@ from r2s.interaction.track import track_objects
 from r2s.io.input_scene import InputScene, load_input, read_json_file
 from r2s.io.interaction_input import load_observed_push
 from r2s.io.mesh_io import load_mesh
-from r2s.io.paths import ScenePaths
+from r2s.io.paths import INIT_REPLACED_PRIORS_DIR, ScenePaths
 from r2s.io.scene_json import read_export_scene, read_gt_scene
 from r2s.metrics.push_prediction import observed_points
 from r2s.io.state import SceneState, read_state
@@ -176,6 +176,28 @@ def load_objects(paths: ScenePaths, stage: str, state: SceneState, inp: InputSce
     return out
 
 
+def registration_objects(paths: ScenePaths, objects: list[ObjectModel], inp: InputScene
+                         ) -> list[ObjectModel]:
+    """``objects`` (init's) for the registration block, each one whose metric prior init
+    replaced by its completion (``init/replaced_priors/``) as that registered prior: the
+    choice of shape says which fits the view better, not that the prior stopped being
+    metric. A depth read 25 % long makes every prior fit worse than its completion, and
+    with no prior left to measure, the depth scale was not identifiable at all."""
+    folder = paths.stage_dir("init") / INIT_REPLACED_PRIORS_DIR
+    if not (folder / "state.json").is_file():
+        return objects
+    areas = {spec.id: float(load_mesh(spec.prior_mesh).area) for spec in inp.objects
+             if spec.prior_mesh is not None}
+    replaced = {o.id: o for o in read_state(folder).objects if o.id in areas}
+    out = []
+    for obj in objects:
+        r = replaced.get(obj.id)
+        out.append(obj if r is None else replace(
+            obj, mesh=load_mesh(folder / r.mesh), world_from_object=r.pose,
+            prior_area_m2=areas[obj.id]))
+    return out
+
+
 def model_support(inp: InputScene, gravity: np.ndarray, settings: MeasureSettings,
                   model: Optional[Mapping[str, Any]]) -> Optional[SupportData]:
     """The support residual against the model's table: level under ``gravity``, or the
@@ -203,7 +225,7 @@ def measure_scene(scene_dir: Path, settings: MeasureSettings,
     init_objects = load_objects(paths, "init", init_state, inp)
 
     progress("registration residual", 0.05)
-    qualities = measure_fit_qualities(inp, init_objects,
+    qualities = measure_fit_qualities(inp, registration_objects(paths, init_objects, inp),
                                       lambda m, f: progress(m, 0.05 + 0.35 * f))
     registration = registration_residual(qualities, settings.scale_sigma, settings.min_fitness,
                                          settings.prior_scale_sigma, settings.prior_scale_dof,
