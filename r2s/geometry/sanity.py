@@ -23,6 +23,13 @@ PRIOR_SIZE_WARN_RATIO = 3.0
 PRIOR_SIZE_ERROR_RATIO = 30.0
 """... and beyond this factor an error: the prior is in other units (mm or cm vs m)."""
 
+SCENE_PRIOR_RATIO_RANGE = (0.85, 2.2)
+"""The median over a scene's priors of prior size / observed size (:func:`prior_size_ratio`)
+outside this range gets a warning: every object seen larger (or smaller) than its prior
+says the depth's scale is off. Scenes with a right depth unit gave medians of 1.08-1.53
+(20 synthesised clean scenes, the 10 realistic and held-out prior scenes, the 10 YCB
+scenes, the seed demo); the depth read 2x long, 0.69 (docs/diagnose.md)."""
+
 ICP_FITNESS_FLOOR = 0.3
 """Fraction of the observed points a fitted object must explain; below: a warning."""
 
@@ -79,6 +86,22 @@ def prior_size_problem(mesh: trimesh.Trimesh, observed_points: np.ndarray
                 "; is it in other units? priors must be in metres")
         return text + hint, True
     return text, False
+
+
+def priors_disagree_with_depth(ratios: list[float]) -> Optional[str]:
+    """A warning when the scene's priors, taken together, are another size than what the
+    depth shows (``ratios``: per prior, :func:`prior_size_ratio`; at least 2), else None.
+    One prior may be wrong; all of them wrong the same way is the depth's scale."""
+    if len(ratios) < 2:
+        return None
+    median = float(np.median(ratios))
+    lo, hi = SCENE_PRIOR_RATIO_RANGE
+    if lo <= median <= hi:
+        return None
+    seen = "larger" if median < lo else "smaller"
+    return (f"the {len(ratios)} priors are {median:.2g}x the observed size (median, outside "
+            f"the {lo:g}-{hi:g} of a right depth unit): the objects are seen {seen} than "
+            "their priors. Is camera.json's depth_unit_m right?")
 
 
 def low_fitness(fitness: float) -> Optional[str]:

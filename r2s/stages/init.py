@@ -364,6 +364,22 @@ def _fit_support(scene: InputScene, o: Options) -> tuple[PlaneFit, np.ndarray]:
     return fit, points
 
 
+def _prior_size_flags(scene: InputScene, observed: dict) -> list[str]:
+    """A warning line when the priors, taken together, disagree in size with the depth
+    (:func:`r2s.geometry.sanity.priors_disagree_with_depth`; ``observed``: id -> (points,
+    pixels)). Degenerate priors and objects seen by too few points are left out."""
+    ratios = []
+    for spec in scene.objects:
+        pts = observed[spec.id][0]
+        if spec.prior_mesh is None or len(pts) < MIN_OBJECT_POINTS:
+            continue
+        prior = load_mesh(spec.prior_mesh)
+        if sanity.degenerate_prior(prior) is None:
+            ratios.append(sanity.prior_size_ratio(prior, pts))
+    problem = sanity.priors_disagree_with_depth(ratios)
+    return [problem] if problem else []
+
+
 def _support_flags(plane: PlaneFit, observed: dict, o: Options) -> list[str]:
     """A warning line when the objects float above the support (``observed``: id ->
     (points, pixels)): the table they stand on was not found."""
@@ -1015,7 +1031,8 @@ def run(ctx: StageContext) -> dict:
 
     observed = {spec.id: _object_points(scene, spec.id, o, plane) for spec in scene.objects}
     # probably-wrong inputs and results, one line each
-    flags: list[str] = list(scene.warnings) + _support_flags(plane, observed, o)
+    flags: list[str] = (list(scene.warnings) + _support_flags(plane, observed, o)
+                        + _prior_size_flags(scene, observed))
     unsegmented, unmasked = _unsegmented(scene, plane, observed, o, flags)
     table_extent_m = sanity.robust_extent_m(support)
     priors, shapes = _register_or_complete(scene, observed, plane, o, flags, ctx.progress)
