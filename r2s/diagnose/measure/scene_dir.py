@@ -157,13 +157,16 @@ def export_options(paths: ScenePaths) -> BodyParams:
     return recorded_options(load_manifest(paths.manifest), "export", BodyParams)
 
 
+def prior_areas(inp: InputScene) -> dict[int, float]:
+    """id -> surface area (m^2) of each object's metric prior in ``input/``."""
+    return {spec.id: float(load_mesh(spec.prior_mesh).area) for spec in inp.objects
+            if spec.prior_mesh is not None}
+
+
 def load_objects(paths: ScenePaths, stage: str, state: SceneState, inp: InputScene
                  ) -> list[ObjectModel]:
     """The state's objects with meshes, and their metric priors' areas."""
-    priors: dict[int, float] = {}
-    for spec in inp.objects:
-        if spec.prior_mesh is not None:
-            priors[spec.id] = float(load_mesh(spec.prior_mesh).area)
+    priors = prior_areas(inp)
     out = []
     for obj in state.objects:
         mesh = load_mesh(paths.stage_dir(stage) / obj.mesh)
@@ -186,8 +189,7 @@ def registration_objects(paths: ScenePaths, objects: list[ObjectModel], inp: Inp
     folder = paths.stage_dir("init") / INIT_REPLACED_PRIORS_DIR
     if not (folder / "state.json").is_file():
         return objects
-    areas = {spec.id: float(load_mesh(spec.prior_mesh).area) for spec in inp.objects
-             if spec.prior_mesh is not None}
+    areas = prior_areas(inp)
     replaced = {o.id: o for o in read_state(folder).objects if o.id in areas}
     out = []
     for obj in objects:
