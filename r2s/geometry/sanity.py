@@ -28,7 +28,8 @@ SCENE_PRIOR_RATIO_RANGE = (0.85, 2.2)
 outside this range gets a warning: every object seen larger (or smaller) than its prior
 says the depth's scale is off. Scenes with a right depth unit gave medians of 1.08-1.53
 (20 synthesised clean scenes, the 10 realistic and held-out prior scenes, the 10 YCB
-scenes, the seed demo); the depth read 2x long, 0.69 (docs/diagnose.md)."""
+scenes, the seed demo; measured on each mask's raw points); the depth read 2x long, 0.71
+as init measures it (docs/diagnose.md)."""
 
 ICP_FITNESS_FLOOR = 0.3
 """Fraction of the observed points a fitted object must explain; below: a warning."""
