@@ -31,6 +31,7 @@ METRICS_FILE = "metrics.json"
 """evaluate's (and texture's own photometric) metrics."""
 PHYSOPT_LOG_FILE = "log.json"
 PHYSOPT_COLLISION_DIR = "collision"
+"""physopt/collision/<id>.npz: the convex pieces physopt checked (r2s/io/pieces_file.py)."""
 INIT_ALTERNATES_DIR = "alternates"
 """init/alternates/: ``state.json`` and ``meshes/<id>.glb`` of the completions of the priors
 init kept, which physopt may swap in (r2s/stages/physopt.py)."""
@@ -38,7 +39,6 @@ INIT_REPLACED_PRIORS_DIR = "replaced_priors"
 """init/replaced_priors/: ``state.json`` and ``meshes/<id>.glb`` of the registered priors init
 replaced by their completions: still metric, so diagnose measures their scale
 (r2s/diagnose/measure/scene_dir.py)."""
-"""physopt/collision/<id>.npz: the convex pieces physopt checked (r2s/io/pieces_file.py)."""
 GEOMOPT_LOSS_FILE = "loss.json"
 DIAGNOSE_REPORT_FILE = "report.json"
 EXPORT_SCENE_FILE = "scene.json"

@@ -70,18 +70,23 @@ class StructureFinding:
                 "best_range_mm": self.best_range_mm, "pattern": self.pattern}
 
 
+def _least_squares_r2(A: np.ndarray, y: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """(R^2 about zero, range of the fitted values, fitted values) of ``y ~ A coef``
+    ((T, k) design matrix, (T,) tile means); R^2 and range 0 where ``y`` is all zero."""
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    fitted = A @ coef
+    total = float(np.sum(y * y))
+    if total <= 0:
+        return 0.0, 0.0, fitted
+    return float(1.0 - np.sum((y - fitted) ** 2) / total), float(np.ptp(fitted)), fitted
+
+
 def _quadratic_r2(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     """(R^2 about zero, range of the fitted values) of ``y ~ a + b x + c x^2``."""
     if len(x) < 4 or np.ptp(x) < 1e-12:
         return 0.0, 0.0
     xs = (x - x.mean()) / np.std(x)
-    A = np.stack([np.ones_like(xs), xs, xs * xs], axis=1)
-    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-    fitted = A @ coef
-    total = float(np.sum(y * y))
-    if total <= 0:
-        return 0.0, 0.0
-    return float(1.0 - np.sum((y - fitted) ** 2) / total), float(np.ptp(fitted))
+    return _least_squares_r2(np.stack([np.ones_like(xs), xs, xs * xs], axis=1), y)[:2]
 
 
 def _position_fit(column: np.ndarray, row: np.ndarray, y: np.ndarray
@@ -92,13 +97,7 @@ def _position_fit(column: np.ndarray, row: np.ndarray, y: np.ndarray
         return 0.0, 0.0, np.zeros_like(y)
     c = (column - column.mean()) / np.std(column)
     r = (row - row.mean()) / np.std(row)
-    A = np.stack([np.ones_like(c), c, r, c * c, c * r, r * r], axis=1)
-    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-    fitted = A @ coef
-    total = float(np.sum(y * y))
-    if total <= 0:
-        return 0.0, 0.0, fitted
-    return float(1.0 - np.sum((y - fitted) ** 2) / total), float(np.ptp(fitted)), fitted
+    return _least_squares_r2(np.stack([np.ones_like(c), c, r, c * c, c * r, r * r], axis=1), y)
 
 
 def test_structure(res: Residuals, alpha: float = 1e-3) -> Optional[StructureFinding]:
