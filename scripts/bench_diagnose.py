@@ -72,6 +72,8 @@ CASES: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
                       ("camera_rotation", "depth_offset")),
     "column_depth": ({}, ()),
     "depth_rotation": ({}, ()),
+    "lens+scale+camera": ({"lens_k1": "-0.12", "depth_scale": "1.04", "camera_rotation_deg": "3"},
+                          ("lens_distortion", "depth_scale", "camera_rotation")),
 }
 """case -> (synth effects, the effects diagnose should name). ``row_depth``,
 ``principal_point_error``, ``disparity_bias`` and ``dark_depth`` are outside the catalogue
