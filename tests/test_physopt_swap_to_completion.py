@@ -71,11 +71,13 @@ def test_a_prior_that_rests_only_far_away_gives_way_to_its_completion(tmp_path: 
     assert state.object(2).source == "completed" and not getattr(state.object(2),
                                                                  SEEN_POSE_KEY, None)
     log = json.loads((root / "physopt" / "log.json").read_text())
-    assert log["swap_to_completion"] == {"ids": [1], "shapes": {"1": "completion"},
-                                         "flagged_before": [1],
-                                         "flagged_after": [], "moving_before": [],
-                                         "moving_after": [], "pooled_iou_before": None,
-                                         "pooled_iou_after": None, "kept": True}
+    record = log["swap_to_completion"]
+    assert record.pop("why")["1"] == "flagged"
+    # the support tree is made again for the cube (on the table, like the box)
+    assert record.pop("refit") == {"parents": {"1": 0, "2": 0}}
+    assert record == {"ids": [1], "shapes": {"1": "completion"}, "flagged_before": [1],
+                      "flagged_after": [], "moving_before": [], "moving_after": [],
+                      "pooled_iou_before": None, "pooled_iou_after": None, "kept": True}
 
 
 def test_a_completed_object_gives_way_to_its_second_completion_only(tmp_path: Path):
@@ -148,3 +150,69 @@ def test_the_completions_are_kept_only_when_better_in_view_and_no_worse_at_rest(
     assert prefer_swapped(S(2, 0, 0.80), S(2, 0, 0.8101))
     assert prefer_swapped(S(1, 0, None), S(0, 0, None))       # no view: fewer flags decide
     assert not prefer_swapped(S(1, 0, None), S(1, 0, None))
+
+
+def test_a_prior_that_rests_only_turned_within_the_tolerance_is_solved_again(tmp_path: Path):
+    """A 100 x 100 x 20 mm slab prior seen tipped 12.5 deg onto one edge falls flat: it turns
+    12.5 deg, inside the 15 deg flag but beyond ``swap_moved_deg`` (10). Unflagged, it is still
+    solved again with its completion (the slab lying flat where it was seen). Without an
+    input view the two solutions tie on flags, so the prior's stays; the attempt and its
+    reason are in the log. With ``swap_moved_deg`` above the turn nothing is tried."""
+    edge, thick, tilt = 0.1, 0.02, np.radians(12.5)
+    d = tmp_path / "scene" / "init"
+    (d / "meshes").mkdir(parents=True)
+    save_mesh(trimesh.creation.box([edge, edge, thick]), d / "meshes" / "1.glb")
+    tipped = trimesh.transformations.rotation_matrix(tilt, [1, 0, 0])
+    # lowest edge on the table: the half-diagonal's height in the tipped frame
+    tipped[2, 3] = 0.5 * edge * np.sin(tilt) + 0.5 * thick * np.cos(tilt)
+    support = SupportPlane(point=[0, 0, 0], normal=[0, 0, 1])
+    write_state(d, SceneState(stage="init", support=support, objects=[
+        ObjectState(id=1, label="slab", mesh="meshes/1.glb", source="prior",
+                    world_from_object=tipped.tolist())]))
+    alt = d / INIT_ALTERNATES_DIR
+    (alt / "meshes").mkdir(parents=True)
+    save_mesh(trimesh.creation.box([edge, edge, thick]), alt / "meshes" / "1.glb")
+    write_state(alt, SceneState(stage="init", support=support, objects=[
+        ObjectState(id=1, label="slab", mesh="meshes/1.glb", source="completed",
+                    world_from_object=_pose(0.0, thick / 2))]))
+    root = tmp_path / "scene"
+    m = load_manifest(root / "manifest.json")
+    m.stages["init"] = StageRecord(status="done")
+    save_manifest(root / "manifest.json", m)
+
+    result = run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False))
+    assert result.summary["flagged_objects"] == 0
+    record = json.loads((root / "physopt" / "log.json").read_text())["swap_to_completion"]
+    turned = float(record["why"]["1"].split("turned ")[1].split(" deg")[0])
+    assert 10.5 < turned < 14.0  # the 12.5 deg tip, give or take the settling
+    assert record["flagged_before"] == [] and record["kept"] is False
+    assert read_state(root / "physopt").object(1).source == "prior"
+
+    run_stage(PHYSOPT, root, PhysOptions(use_diffsim=False, swap_moved_deg=20.0,
+                                         swap_moved_m=0.05))
+    assert "swap_to_completion" not in json.loads((root / "physopt" / "log.json").read_text())
+
+
+def test_which_objects_are_solved_again():
+    """r2s/physopt/swap_choice.py ``swap_candidates``: flagged objects with an alternative;
+    priors moved beyond 15 mm or turned beyond 10 deg; the priors under those in the
+    support tree; nothing without an alternative, and no completed object for a move
+    alone."""
+    from r2s.physopt.swap_choice import swap_candidates
+
+    parents = {1: 0, 2: 1, 3: 2, 4: 0, 5: 0}
+    alt = {1: True, 2: True, 3: True, 4: True, 5: False}
+    prior = {1: True, 2: False, 3: True, 4: True, 5: True}
+    why = swap_candidates({}, {3: (0.001, 10.5), 4: (0.014, 9.9), 5: (0.03, 30.0)}, alt,
+                          prior, parents)
+    # 3 turned 10.5 deg; 2 under it is completed, 1 under 2 is a prior; 4 is inside both
+    # thresholds; 5 has no alternative
+    assert why == {1: "under object 3", 3: "moved 1.0 mm, turned 10.5 deg"}
+    assert swap_candidates({}, {4: (0.0151, 0.0)}, alt, prior, parents) == {
+        4: "moved 15.1 mm, turned 0.0 deg"}
+    assert swap_candidates({}, {4: (0.006, 6.0)}, alt, prior, parents, moved_m=0.005,
+                           moved_deg=5.0) == {4: "moved 6.0 mm, turned 6.0 deg"}
+    assert swap_candidates({2: "physopt moved 30 mm"}, {2: (0.03, 0.0)}, alt, prior,
+                           parents) == {2: "flagged"}
+    assert swap_candidates({}, {2: (0.03, 40.0)}, alt, prior, parents) == {}
+    assert swap_candidates({5: "x"}, {}, alt, prior, parents) == {}

@@ -121,3 +121,32 @@ def test_a_prior_is_kept_when_its_completion_fails(tmp_path, monkeypatch):
     assert {i: o.source for i, o in state.items()} == {1: "prior", 2: "prior"}
     assert state[1].prior_choice == {"chosen": "prior", "prior": None, "completion": None}
     assert result.summary["prior_choice"] == {"1": "prior", "2": "prior"}
+
+
+def test_the_completion_kept_beside_a_prior_is_finished_as_if_init_had_chosen_it(tmp_path):
+    """init/alternates/ holds the completion of every prior kept, for physopt to swap in.
+    It is finished as init finishes its chosen shapes (hidden space shared, outline snapped
+    onto the mask), with every kept prior completed: the cube's alternate is the very mesh,
+    at the very pose, that ``prior_choice=completion`` gives it."""
+    from r2s.io.mesh_io import load_mesh
+    from r2s.io.paths import INIT_ALTERNATES_DIR, ScenePaths
+    from r2s.io.state import read_state
+    from r2s.runner.base import run_stage
+    from r2s.stages.init import STAGE, Options
+
+    K, world_from_camera = _view()
+    runs = {}
+    for choice in ("auto", "completion"):
+        scene = write_input_scene(tmp_path / choice, _scene(), WIDTH, HEIGHT, K=K,
+                                  world_from_camera=world_from_camera)
+        run_stage(STAGE, scene, Options(icp_yaw_hypotheses=1, prior_choice=choice))
+        runs[choice] = ScenePaths(scene).stage_dir("init")
+    alternate = read_state(runs["auto"] / INIT_ALTERNATES_DIR).object(2)
+    chosen = read_state(runs["completion"]).object(2)
+    assert read_state(runs["auto"]).object(2).source == "prior"
+    assert chosen.source == "completed"
+    np.testing.assert_allclose(alternate.pose, chosen.pose, atol=1e-9)
+    a = load_mesh(runs["auto"] / INIT_ALTERNATES_DIR / alternate.mesh)
+    c = load_mesh(runs["completion"] / chosen.mesh)
+    assert a.vertices.shape == c.vertices.shape
+    np.testing.assert_allclose(a.vertices, c.vertices, atol=1e-6)

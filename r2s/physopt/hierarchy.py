@@ -21,7 +21,12 @@ def parents_from_graph(graph_path: Path) -> Optional[dict[int, int]]:
     graph_path = Path(graph_path)
     if not graph_path.is_file():
         return None
-    graph = ContactGraph.model_validate(json.loads(graph_path.read_text()))
+    return parents_of(ContactGraph.model_validate(json.loads(graph_path.read_text())))
+
+
+def parents_of(graph: ContactGraph) -> Optional[dict[int, int]]:
+    """child id -> parent id (0 = the table) of a contact graph (as
+    :func:`parents_from_graph`), or None for a graph without support edges."""
     parents = {e.child: e.parent for e in graph.support_edges if e.in_tree}
     for node in graph.nodes:
         if node.parent is not None and node.id != graph.root:

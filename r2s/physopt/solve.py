@@ -27,11 +27,14 @@ from r2s.physical.provenance import com_provenance, friction_provenance
 @dataclass(frozen=True)
 class Solved:
     """params: the final per-object parameters; drift: id -> (m, deg) the judge-like check
-    measured last; flags: id -> why an object ended beyond the observation tolerance."""
+    measured last; flags: id -> why an object ended beyond the observation tolerance;
+    displacement: id -> (m, deg) from where it was seen to where it ends (objects with a
+    seen pose)."""
 
     params: Params
     drift: Drift
     flags: dict[int, str]
+    displacement: dict[int, tuple[float, float]]
 
 
 def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
@@ -62,11 +65,11 @@ def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
                                   [o.id for o in state.objects], opt, log,
                                   seen=seen if opt.pull_back_to_seen else None,
                                   one_by_one=opt.pull_back_one_by_one)
-    flags, _ = displacement_flags(seen, {i: p.world_from_object for i, p in params.items()},
-                                  centres, opt.observation_tolerance_m,
-                                  opt.observation_tolerance_deg)
+    flags, displacement = displacement_flags(
+        seen, {i: p.world_from_object for i, p in params.items()}, centres,
+        opt.observation_tolerance_m, opt.observation_tolerance_deg)
     log["observation_flags"] = {str(i): reason for i, reason in flags.items()}
-    return Solved(params, drift, flags)
+    return Solved(params, drift, flags, displacement)
 
 
 def give_feet(make_world, pieces: dict, params: Params, export_order: list[int],

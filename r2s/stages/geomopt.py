@@ -94,6 +94,26 @@ def inputs(paths: ScenePaths, options: Options, manifest: Manifest) -> list[Path
     return found
 
 
+def solve_poses(paths: ScenePaths, model: dict, state: SceneState, meshes: list, grids: list,
+                graph, opts: Options, progress) -> tuple:
+    """geomopt's optimisation of ``state``'s poses (meshes and SDF grids per object, in the
+    state's order, object frame) with ``graph``; (problem, result) of
+    :func:`r2s.geomopt.optimise.optimise_poses`. ``paths`` / ``model``: where the view and
+    the camera are read from, as the scene's model corrects them (physopt's solve with
+    init's completions runs it too)."""
+    ids = [o.id for o in state.objects]
+    problem = build_problem(ids, meshes, np.stack([o.pose for o in state.objects]), grids, graph,
+                            np.asarray(state.support.point), np.asarray(state.support.normal),
+                            samples=opts.samples, seed=opts.seed,
+                            all_supporters=opts.all_supporters, gravity=np.asarray(state.gravity))
+    if opts.lambda_free_space > 0:
+        problem.view = _view(paths, ids, model)
+    if opts.anchor_sideways_ratio != 1.0 and paths.camera.is_file():
+        camera = corrected_camera(load_camera(paths.camera)[0], model)
+        problem.camera_position_m = np.asarray(camera.world_from_camera, dtype=float)[:3, 3]
+    return problem, optimise_poses(problem, opts.params(), progress)
+
+
 def _view(paths: ScenePaths, ids: list[int], model: dict) -> Optional[ObservedView]:
     """The input view (as the scene's model corrects it) for the free-space term; None for
     a scene without input/ (a state built by hand)."""
@@ -179,20 +199,11 @@ def run(ctx: StageContext) -> dict:
         grids.append(grid)
     t_sdf = time.perf_counter() - t_sdf
 
-    problem = build_problem(ids, meshes, np.stack([o.pose for o in state.objects]), grids, graph,
-                            np.asarray(state.support.point), np.asarray(state.support.normal),
-                            samples=opts.samples, seed=opts.seed,
-                            all_supporters=opts.all_supporters, gravity=np.asarray(state.gravity))
-    if opts.lambda_free_space > 0:
-        problem.view = _view(paths, ids, ctx.manifest.model)
-    if opts.anchor_sideways_ratio != 1.0 and paths.camera.is_file():
-        camera = corrected_camera(load_camera(paths.camera)[0], ctx.manifest.model)
-        problem.camera_position_m = np.asarray(camera.world_from_camera, dtype=float)[:3, 3]
-
     def progress(message: str, fraction: float) -> None:
         ctx.progress(message, 0.5 + 0.5 * fraction)
 
-    result = optimise_poses(problem, opts.params(), progress)
+    problem, result = solve_poses(paths, ctx.manifest.model, state, meshes, grids, graph, opts,
+                                  progress)
 
     objects = [o.model_copy(update={"world_from_object": result.world_from_object[k].tolist(),
                                     "mesh": f"meshes/{o.id}.glb"})

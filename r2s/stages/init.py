@@ -763,6 +763,23 @@ def _final_shapes(ctx: StageContext, scene: InputScene, observed: dict,
     return yielded, bridged
 
 
+def _finished_alternates(ctx: StageContext, scene: InputScene, observed: dict,
+                         shapes: dict[int, tuple], alternates: dict[int, tuple],
+                         plane: PlaneFit, o: Options) -> dict[int, tuple]:
+    """The completions of the priors kept (``alternates``: id -> (mesh, world_from_object)),
+    finished as if init had chosen every one of them: :func:`_final_shapes` on a copy of
+    ``shapes`` with each kept prior replaced by its completion (hidden space shared among
+    them, outlines snapped). physopt swaps several of them in together, where the priors
+    could rest only turned from where they were seen; raw, the seed demo's fruit
+    completions did not rest on the plate's (docs/physopt.md)."""
+    if not alternates:
+        return alternates
+    together = {i: ((*alternates[i], None) if i in alternates else shape)
+                for i, shape in shapes.items()}
+    _final_shapes(ctx, scene, observed, together, plane, o)
+    return {i: together[i][:2] for i in alternates}
+
+
 def _snap_completions(scene: InputScene, shapes: dict[int, tuple], plane: PlaneFit,
                       max_shift_px: float, only: Optional[int] = None) -> None:
     """In place in ``shapes``: every completed object's mesh with its outer silhouette
@@ -1043,6 +1060,7 @@ def run(ctx: StageContext) -> dict:
     choices, alternates, replaced = _choose_prior_or_completion(scene, observed, shapes, plane,
                                                                 o, flags)
     _save_shapes(out / INIT_REPLACED_PRIORS_DIR, replaced, scene, plane, source="prior")
+    alternates = _finished_alternates(ctx, scene, observed, shapes, alternates, plane, o)
     yielded, bridged = _final_shapes(ctx, scene, observed, shapes, plane, o)
     _save_alternates(out, alternates, scene, plane, bridged)
     objects: list[ObjectState] = []

@@ -38,12 +38,14 @@ from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, SEEN_POSE_KEY, s
 from r2s.physopt.params import initial_params, keep_previous
 from r2s.physopt.piece_overlap import OverlapShave, shave_overlaps
 from r2s.physopt.solve import Solved, physopt_provenance, solve_scene
-from r2s.physopt.swap_choice import SolutionSummary, prefer_swapped
+from r2s.physopt.swap_choice import (MOVED_DEG, MOVED_M, SolutionSummary, prefer_swapped,
+                                    swap_candidates)
 from r2s.metrics.observation import render_objects, silhouette_iou
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
 from r2s.physical.provenance import user_entries
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.scene_model import corrected_input, corrected_state
+from r2s.stages.refit_poses import refit_poses
 
 
 class Options(StageOptions, RepairSettings, DiffsimSettings):
@@ -95,7 +97,13 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
                           "alternative shape of it in its place (init/alternates/) and keep "
                           "that solution if it leaves no more objects flagged or still moving "
                           "and its silhouette IoU is higher by >= 0.01 "
-                          "(physopt/swap_choice.py).")
+                          "(physopt/swap_choice.py). A prior that the first solve moved or "
+                          "turned beyond swap_moved_m / swap_moved_deg is tried the same way.")
+    swap_moved_m: float = Field(
+        MOVED_M, gt=0, description="A prior the first solve left farther than this from "
+                                   "where it was seen is solved again with its completion, m.")
+    swap_moved_deg: float = Field(
+        MOVED_DEG, gt=0, description="... or turned more than this, degrees.")
 
 
 def _source(paths: ScenePaths, options: Options, manifest: Manifest) -> str:
@@ -145,7 +153,7 @@ def run(ctx: StageContext) -> dict:
                          ctx.progress)
     mesh_files = {o.id: paths.stage_dir(src) / o.mesh for o in state.objects}
     if opt.swap_to_completion and opt.only is None:
-        swapped = _solve_with_completions(ctx, src, state, meshes, order, parents, seen,
+        swapped = _solve_with_completions(ctx, src, state, meshes, parents, seen,
                                           convex, solved, log)
         if swapped is not None:
             state, pieces, solved, log, mesh_files = swapped
@@ -170,40 +178,55 @@ def _new_log(src: str, order: list[int], parents: dict, pieces: "_Pieces") -> di
 
 
 def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, meshes: dict,
-                            order: list[int], parents: dict, seen: dict[int, np.ndarray],
+                            parents: dict, seen: dict[int, np.ndarray],
                             convex: ConvexParams, solved: Solved, log: dict
                             ) -> Optional[tuple]:
     """Solve again with init's alternative shape (``init/alternates/``) in place of every
-    flagged object that has one: a prior's completion, or a completed object's second
+    object :func:`r2s.physopt.swap_choice.swap_candidates` names (flagged, or a prior moved
+    or turned visibly) that has one: a prior's completion, or a completed object's second
     completion, lying across others or not (``alternate: "bridged completion"`` or
     ``"unbridged completion"``; ``seen``: id -> where each
     object was seen, for the first solve);
     (state, pieces, solved, log, mesh files) of that solution when
     :func:`r2s.physopt.swap_choice.prefer_swapped` prefers it, else None (``log`` then
     records the attempt). A swapped object is seen where its completion was (its state
-    carries :data:`SEEN_POSE_KEY`, which export measures the displacement from)."""
+    carries :data:`SEEN_POSE_KEY`, which export measures the displacement from). The
+    support tree and (when ``src`` is geomopt) geomopt's poses are made again for the new
+    shapes first (:mod:`r2s.stages.refit_poses`)."""
     paths, opt = ctx.paths, ctx.options
     alt_dir = paths.stage_dir("init") / INIT_ALTERNATES_DIR
-    if not solved.flags or not (alt_dir / STATE_FILE).is_file():
+    if not (alt_dir / STATE_FILE).is_file():
         return None
     alternates = corrected_state(read_state(alt_dir), ctx.manifest.model)
-    swap = {o.id: o for o in alternates.objects
-            if o.id in solved.flags and o.id in meshes
-            and (state.object(o.id).source == "prior" or _second_completion(o))}
+    usable = {o.id: o for o in alternates.objects if o.id in meshes
+              and (state.object(o.id).source == "prior" or _second_completion(o))}
+    why = swap_candidates(solved.flags, solved.displacement,
+                          {i: True for i in usable},
+                          {i: state.object(i).source == "prior" for i in usable},
+                          parents or {}, opt.swap_moved_m, opt.swap_moved_deg)
+    swap = {i: usable[i] for i in why}
     if not swap:
         return None
     ctx.progress(f"objects {sorted(swap)}: solving again with their completions", 0.6)
+    refit_geomopt = src == "geomopt"
     objects = [swap[o.id].model_copy(update={"label": o.label,
                                              SEEN_POSE_KEY: swap[o.id].world_from_object})
-               if o.id in swap else o for o in state.objects]
+               if o.id in swap else _at_seen(o, seen) if refit_geomopt else o
+               for o in state.objects]
     state2 = state.model_copy(update={"objects": objects})
-    meshes2 = {**meshes, **{i: welded(load_mesh(alt_dir / o.mesh)) for i, o in swap.items()}}
-    pieces2 = _collision_pieces(ctx, state2, meshes2, convex, order)
+    files = {o.id: (alt_dir / o.mesh if o.id in swap else paths.stage_dir(src) / o.mesh)
+             for o in state2.objects}
+    as_saved = {i: load_mesh(f) for i, f in files.items()}  # as the graph and geomopt read them
+    meshes2 = {**meshes, **{i: welded(as_saved[i]) for i in swap}}
+    state2, parents2, refit = refit_poses(ctx, state2, as_saved, with_geomopt=refit_geomopt)
+    order2 = order_root_to_leaves([o.id for o in state2.objects], parents2,
+                                  lowest_points_m(state2.objects, meshes2))
+    pieces2 = _collision_pieces(ctx, state2, meshes2, convex, order2)
     params2 = initial_params(state2, meshes2, pieces2.pieces, opt.density_kg_m3,
                              opt.mass_bounds, opt.friction_init, user_entries(paths.root))
     seen2 = {**seen, **{i: o.pose for i, o in swap.items()}}
-    log2 = _new_log(src, order, parents, pieces2)
-    solved2 = solve_scene(params2, pieces2.pieces, meshes2, state2, order, seen2, opt, log2,
+    log2 = _new_log(src, order2, parents2, pieces2)
+    solved2 = solve_scene(params2, pieces2.pieces, meshes2, state2, order2, seen2, opt, log2,
                           ctx.progress)
     view = (corrected_input(load_input(paths.root), ctx.manifest.model)
             if paths.input.is_dir() else None)
@@ -212,7 +235,7 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
     after = SolutionSummary(len(solved2.flags), len(opt.moving(solved2.drift)),
                             _pooled_iou(view, meshes2, solved2.params))
     keep = prefer_swapped(before, after)
-    record = {"ids": sorted(swap),
+    record = {"ids": sorted(swap), "why": {str(i): w for i, w in sorted(why.items())},
               "shapes": {str(i): (o.alternate if _second_completion(o) else "completion")
                          for i, o in sorted(swap.items())},
               "flagged_before": sorted(solved.flags),
@@ -220,14 +243,23 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
               "moving_before": sorted(opt.moving(solved.drift)),
               "moving_after": sorted(opt.moving(solved2.drift)),
               "pooled_iou_before": before.pooled_iou,
-              "pooled_iou_after": after.pooled_iou, "kept": keep}
+              "pooled_iou_after": after.pooled_iou, "refit": refit, "kept": keep}
     if not keep:
         log["swap_to_completion"] = record
         return None
     log2["swap_to_completion"] = record
-    files = {o.id: (alt_dir / o.mesh if o.id in swap else paths.stage_dir(src) / o.mesh)
-             for o in state2.objects}
     return state2, pieces2, solved2, log2, files
+
+
+def _at_seen(o: ObjectState, seen: dict[int, np.ndarray]) -> ObjectState:
+    """``o`` back at the pose where init saw it (``seen``: id -> (4, 4)), from where geomopt
+    runs again with the swapped shapes: the second solve then starts as ``r2s run`` would
+    have, had init chosen them. On the seed demo it is then the very solve of
+    ``init.prior_choice=completion`` (IoU 0.950); from geomopt's poses of the others and
+    with welded meshes it ended elsewhere (0.926, the lemon 0.70 against 0.87)."""
+    if o.id not in seen:
+        return o
+    return o.model_copy(update={"world_from_object": np.asarray(seen[o.id]).tolist()})
 
 
 def _second_completion(o: ObjectState) -> bool:
