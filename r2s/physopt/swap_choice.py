@@ -51,7 +51,7 @@ def swap_candidates(flags: Mapping[int, str],
     displacement : id -> (m, deg) from where each was seen to where the first solve left it;
     a prior moved beyond ``moved_m`` or ``moved_deg`` is a candidate too, and so is every
     prior under it in the support tree (``parents``: id -> the id it rests on, 0 the
-    table). Completions are made from one view and fit each other: the seed demo's fruit
+    table). Completions are made from one view and fit each other: the seed demo's raw fruit
     completions on its registered plate prior left six objects flagged (IoU 0.45).
     has_alternate, is_prior : id -> whether init kept an alternative shape / the object is a
     registered prior.
