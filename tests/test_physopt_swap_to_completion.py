@@ -201,8 +201,8 @@ def test_which_objects_are_solved_again():
     from r2s.physopt.swap_choice import swap_candidates
 
     parents = {1: 0, 2: 1, 3: 2, 4: 0, 5: 0}
-    alt = {1: True, 2: True, 3: True, 4: True, 5: False}
-    prior = {1: True, 2: False, 3: True, 4: True, 5: True}
+    alt = {1, 2, 3, 4}
+    prior = {1, 3, 4, 5}
     why = swap_candidates({}, {3: (0.001, 10.5), 4: (0.014, 9.9), 5: (0.03, 30.0)}, alt,
                           prior, parents)
     # 3 turned 10.5 deg; 2 under it is completed, 1 under 2 is a prior; 4 is inside both

@@ -15,7 +15,7 @@ input view (no masks to compare with), fewer flags decide.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping, Optional
+from typing import Collection, Mapping, Optional
 
 MIN_IOU_GAIN = 0.01
 """A prior carries the hidden side a completion only guesses, so the completions must be
@@ -42,7 +42,7 @@ set with these scenes in view (docs/physopt.md)."""
 
 def swap_candidates(flags: Mapping[int, str],
                     displacement: Mapping[int, tuple[float, float]],
-                    has_alternate: Mapping[int, bool], is_prior: Mapping[int, bool],
+                    alternates: Collection[int], priors: Collection[int],
                     parents: Mapping[int, int], moved_m: float = MOVED_M,
                     moved_deg: float = MOVED_DEG) -> dict[int, str]:
     """Objects to solve again with init's alternative shape, id -> why.
@@ -53,26 +53,24 @@ def swap_candidates(flags: Mapping[int, str],
     prior under it in the support tree (``parents``: id -> the id it rests on, 0 the
     table). Completions are made from one view and fit each other: the seed demo's raw fruit
     completions on its registered plate prior left six objects flagged (IoU 0.45).
-    has_alternate, is_prior : id -> whether init kept an alternative shape / the object is a
-    registered prior.
+    alternates : ids init kept an alternative shape for; priors : ids that are registered
+    priors.
     """
     out: dict[int, str] = {}
     moved: list[int] = []
-    for i, ok in sorted(has_alternate.items()):
-        if not ok:
-            continue
+    for i in sorted(alternates):
         if i in flags:
             out[i] = "flagged"
             continue
         m, deg = displacement.get(i, (0.0, 0.0))
-        if is_prior.get(i, False) and (m > moved_m or deg > moved_deg):
+        if i in priors and (m > moved_m or deg > moved_deg):
             out[i] = f"moved {1000 * m:.1f} mm, turned {deg:.1f} deg"
             moved.append(i)
     for i in moved:
         below, seen_ids = parents.get(i, 0), {i}
         while below and below not in seen_ids:
             seen_ids.add(below)
-            if below not in out and has_alternate.get(below) and is_prior.get(below, False):
+            if below not in out and below in alternates and below in priors:
                 out[below] = f"under object {i}"
             below = parents.get(below, 0)
     return dict(sorted(out.items()))

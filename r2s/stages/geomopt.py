@@ -129,6 +129,20 @@ def _sdf_settings(resolution: int, voxel_size_m: Optional[float]) -> dict:
             "padding_fraction": SDF_PADDING_FRACTION, "method": "band3+cpt"}
 
 
+def sdf_of_file(folder: Path, obj_id: int, mesh, mesh_bytes: bytes, opts: Options
+                ) -> tuple[SdfGrid, str, bool]:
+    """The SDF of object ``obj_id``'s mesh (loaded from ``mesh_bytes``, object frame) with
+    ``opts``'s grid settings: the one saved in ``folder`` (a geomopt run's ``sdf/``) when it
+    was made from the same bytes with the same settings, else computed. Returns the grid,
+    the bytes' sha256 and whether it was reused."""
+    sha = hashlib.sha256(mesh_bytes).hexdigest()
+    settings = _sdf_settings(opts.sdf_resolution, opts.sdf_voxel_size_m)
+    grid = _cached_sdf(folder, obj_id, sha, settings)
+    if grid is not None:
+        return grid, sha, True
+    return object_sdf(mesh, opts.sdf_resolution, opts.sdf_voxel_size_m), sha, False
+
+
 def _cached_sdf(folder: Path, obj_id: int, mesh_sha: str, settings: dict) -> SdfGrid | None:
     """The previous run's SDF of this mesh with these settings, if any."""
     try:
@@ -186,15 +200,11 @@ def run(ctx: StageContext) -> dict:
         mesh = load_mesh(mesh_path)
         mesh_bytes = mesh_path.read_bytes()
         atomic_write_bytes(ctx.out_dir / "meshes" / f"{o.id}.glb", mesh_bytes)
-        sha = hashlib.sha256(mesh_bytes).hexdigest()
-        settings = _sdf_settings(opts.sdf_resolution, opts.sdf_voxel_size_m)
-        grid = _cached_sdf(old_sdf_dir, o.id, sha, settings)
-        if grid is None:
-            grid = object_sdf(mesh, opts.sdf_resolution, opts.sdf_voxel_size_m)
-        else:
-            reused += 1
-        save_sdf(grid, sdf_dir, o.id, extra={"mesh_sha256": sha, "mesh": f"meshes/{o.id}.glb",
-                                             "settings": settings})
+        grid, sha, was_cached = sdf_of_file(old_sdf_dir, o.id, mesh, mesh_bytes, opts)
+        reused += was_cached
+        save_sdf(grid, sdf_dir, o.id, extra={
+            "mesh_sha256": sha, "mesh": f"meshes/{o.id}.glb",
+            "settings": _sdf_settings(opts.sdf_resolution, opts.sdf_voxel_size_m)})
         meshes.append(mesh)
         grids.append(grid)
     t_sdf = time.perf_counter() - t_sdf

@@ -200,9 +200,8 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
     alternates = corrected_state(read_state(alt_dir), ctx.manifest.model)
     usable = {o.id: o for o in alternates.objects if o.id in meshes
               and (state.object(o.id).source == "prior" or _second_completion(o))}
-    why = swap_candidates(solved.flags, solved.displacement,
-                          {i: True for i in usable},
-                          {i: state.object(i).source == "prior" for i in usable},
+    why = swap_candidates(solved.flags, solved.displacement, set(usable),
+                          {i for i in usable if state.object(i).source == "prior"},
                           parents or {}, opt.swap_moved_m, opt.swap_moved_deg)
     swap = {i: usable[i] for i in why}
     if not swap:
@@ -216,9 +215,8 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
     state2 = state.model_copy(update={"objects": objects})
     files = {o.id: (alt_dir / o.mesh if o.id in swap else paths.stage_dir(src) / o.mesh)
              for o in state2.objects}
-    as_saved = {i: load_mesh(f) for i, f in files.items()}  # as the graph and geomopt read them
-    meshes2 = {**meshes, **{i: welded(as_saved[i]) for i in swap}}
-    state2, parents2, refit = refit_poses(ctx, state2, as_saved, with_geomopt=refit_geomopt)
+    meshes2 = {**meshes, **{i: welded(load_mesh(files[i])) for i in swap}}
+    state2, parents2, refit = refit_poses(ctx, state2, files, with_geomopt=refit_geomopt)
     order2 = order_root_to_leaves([o.id for o in state2.objects], parents2,
                                   lowest_points_m(state2.objects, meshes2))
     pieces2 = _collision_pieces(ctx, state2, meshes2, convex, order2)

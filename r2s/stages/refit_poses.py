@@ -15,12 +15,13 @@ Frames: poses are (4, 4) ``world_from_object``; meshes are in their object frame
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Optional
 
 import numpy as np
-import trimesh
 
 from r2s.graph.build import build_contact_graph
+from r2s.io.mesh_io import load_mesh
 from r2s.physopt.hierarchy import parents_of
 from r2s.runner.base import StageContext
 from r2s.io.state import SceneState
@@ -38,16 +39,18 @@ def _options(ctx: StageContext, stage: str, options_type):
         return options_type()
 
 
-def refit_poses(ctx: StageContext, state: SceneState, meshes: dict[int, trimesh.Trimesh],
+def refit_poses(ctx: StageContext, state: SceneState, files: dict[int, Path],
                 with_geomopt: bool) -> tuple[SceneState, Optional[dict[int, int]], dict]:
-    """The contact graph of ``state`` (objects at their poses, ``meshes``: id -> object-frame
-    mesh as its file loads, not welded: as the graph and geomopt stages read it), then,
-    ``with_geomopt``, geomopt's optimisation of its poses along that graph.
+    """The contact graph of ``state`` (objects at their poses, ``files``: id -> its mesh
+    file, object frame, loaded as the graph and geomopt stages load it: not welded), then,
+    ``with_geomopt``, geomopt's optimisation of its poses along that graph (the SDFs of
+    meshes geomopt already saw reused from ``geomopt/sdf/``).
 
     Returns the state with the new poses, the support tree (child id -> parent id, 0 = the
     table; None without support edges) and a record for physopt/log.json (the parents, and
     each object's geomopt move in mm and deg).
     """
+    meshes = {i: load_mesh(f) for i, f in files.items()}
     graph_opts = _options(ctx, "graph", graph_stage.Options)
     graph = build_contact_graph(graph_stage.posed_objects(state, meshes),
                                 np.asarray(state.gravity), np.asarray(state.support.point),
@@ -58,8 +61,9 @@ def refit_poses(ctx: StageContext, state: SceneState, meshes: dict[int, trimesh.
         return state, parents, record
     opts = _options(ctx, "geomopt", geomopt_stage.Options)
     ordered = [meshes[o.id] for o in state.objects]
-    grids = [geomopt_stage.object_sdf(m, opts.sdf_resolution, opts.sdf_voxel_size_m)
-             for m in ordered]
+    sdf_dir = ctx.paths.stage_dir("geomopt") / "sdf"
+    grids = [geomopt_stage.sdf_of_file(sdf_dir, o.id, meshes[o.id], files[o.id].read_bytes(),
+                                       opts)[0] for o in state.objects]
     problem, result = geomopt_stage.solve_poses(ctx.paths, ctx.manifest.model, state, ordered,
                                                 grids, graph, opts, lambda *_: None)
     objects = [o.model_copy(update={"world_from_object": result.world_from_object[k].tolist()})
