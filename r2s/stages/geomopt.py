@@ -114,6 +114,14 @@ def solve_poses(paths: ScenePaths, model: dict, state: SceneState, meshes: list,
     return problem, optimise_poses(problem, opts.params(), progress)
 
 
+def pose_moves(problem, result) -> tuple[np.ndarray, np.ndarray]:
+    """(M,) how far each object's origin moved (mm) and (M,) how far it turned (deg) from
+    ``problem``'s start poses to ``result``'s (:func:`solve_poses`)."""
+    shift_mm = 1000.0 * np.linalg.norm(result.world_from_object[:, :3, 3]
+                                       - problem.init_world_from_object[:, :3, 3], axis=1)
+    return shift_mm, np.degrees(np.linalg.norm(result.omega, axis=1))
+
+
 def _view(paths: ScenePaths, ids: list[int], model: dict) -> Optional[ObservedView]:
     """The input view (as the scene's model corrects it) for the free-space term; None for
     a scene without input/ (a state built by hand)."""
@@ -221,9 +229,7 @@ def run(ctx: StageContext) -> dict:
     write_state(ctx.out_dir, SceneState.model_validate(
         {**state.model_dump(), "stage": "geomopt", "objects": [o.model_dump() for o in objects]}))
 
-    shift_mm = 1000.0 * np.linalg.norm(result.world_from_object[:, :3, 3]
-                                       - problem.init_world_from_object[:, :3, 3], axis=1)
-    rot_deg = np.degrees(np.linalg.norm(result.omega, axis=1))
+    shift_mm, rot_deg = pose_moves(problem, result)
     per_object = [{"id": i, "translation_mm": round(float(s), 3), "rotation_deg": round(float(r), 3)}
                   for i, s, r in zip(ids, shift_mm, rot_deg)]
     atomic_write_json(ctx.out_dir / GEOMOPT_LOSS_FILE, {

@@ -22,21 +22,12 @@ import numpy as np
 
 from r2s.graph.build import build_contact_graph
 from r2s.io.mesh_io import load_mesh
+from r2s.io.recorded_options import recorded_options
 from r2s.physopt.hierarchy import parents_of
 from r2s.runner.base import StageContext
 from r2s.io.state import SceneState
 from r2s.stages import geomopt as geomopt_stage
 from r2s.stages import graph as graph_stage
-
-
-def _options(ctx: StageContext, stage: str, options_type):
-    """The options ``stage`` last ran with in this scene (its defaults where it never ran or
-    its record no longer validates)."""
-    record = ctx.manifest.stages.get(stage)
-    try:
-        return options_type.model_validate(record.options if record else {})
-    except Exception:
-        return options_type()
 
 
 def refit_poses(ctx: StageContext, state: SceneState, files: dict[int, Path],
@@ -51,7 +42,7 @@ def refit_poses(ctx: StageContext, state: SceneState, files: dict[int, Path],
     each object's geomopt move in mm and deg).
     """
     meshes = {i: load_mesh(f) for i, f in files.items()}
-    graph_opts = _options(ctx, "graph", graph_stage.Options)
+    graph_opts = recorded_options(ctx.manifest, "graph", graph_stage.Options)
     graph = build_contact_graph(graph_stage.posed_objects(state, meshes),
                                 np.asarray(state.gravity), np.asarray(state.support.point),
                                 np.asarray(state.support.normal), graph_opts.params())
@@ -59,7 +50,7 @@ def refit_poses(ctx: StageContext, state: SceneState, files: dict[int, Path],
     record: dict = {"parents": {str(k): v for k, v in sorted((parents or {}).items())}}
     if not with_geomopt:
         return state, parents, record
-    opts = _options(ctx, "geomopt", geomopt_stage.Options)
+    opts = recorded_options(ctx.manifest, "geomopt", geomopt_stage.Options)
     ordered = [meshes[o.id] for o in state.objects]
     sdf_dir = ctx.paths.stage_dir("geomopt") / "sdf"
     grids = [geomopt_stage.sdf_of_file(sdf_dir, o.id, meshes[o.id], files[o.id].read_bytes(),
@@ -68,9 +59,7 @@ def refit_poses(ctx: StageContext, state: SceneState, files: dict[int, Path],
                                                 grids, graph, opts, lambda *_: None)
     objects = [o.model_copy(update={"world_from_object": result.world_from_object[k].tolist()})
                for k, o in enumerate(state.objects)]
-    moved_mm = 1000.0 * np.linalg.norm(result.world_from_object[:, :3, 3]
-                                       - problem.init_world_from_object[:, :3, 3], axis=1)
-    turned_deg = np.degrees(np.linalg.norm(result.omega, axis=1))
+    moved_mm, turned_deg = geomopt_stage.pose_moves(problem, result)
     record["geomopt"] = {str(o.id): [round(float(m), 2), round(float(d), 2)]
                          for o, m, d in zip(state.objects, moved_mm, turned_deg)}
     return state.model_copy(update={"objects": objects}), parents, record
