@@ -283,7 +283,8 @@ SCRIPT_INJECT = {"column_depth": add_column_depth_error, "depth_rotation": add_d
 """case -> the function that injects it into a synthesised scene."""
 
 
-def make_scene(root: Path, case: str, seed: int, count: int, size: tuple[int, int]) -> Path:
+def make_scene(root: Path, case: str, seed: int, count: int, size: tuple[int, int],
+               synth_set: dict[str, str] | None = None) -> Path:
     import shutil
 
     from r2s.synth.generate import SynthOptions, synthesize
@@ -300,8 +301,10 @@ def make_scene(root: Path, case: str, seed: int, count: int, size: tuple[int, in
             shutil.rmtree(scene)
         t0 = time.perf_counter()
         n = count if count > 0 else SCENE_COUNTS[seed % len(SCENE_COUNTS)]
-        synthesize(scene, SynthOptions(objects="ycb", count=n, seed=1000 * (k + 1) + seed,
-                                       effects=CASES[case][0], width=size[0], height=size[1]))
+        extra = {"objects": "ycb", **(synth_set or {})}
+        synthesize(scene, SynthOptions(count=n, seed=1000 * (k + 1) + seed,
+                                       effects=CASES[case][0], width=size[0], height=size[1],
+                                       **extra))
         if case in SCRIPT_INJECT:
             SCRIPT_INJECT[case](scene)
         print(f"synth {scene.name} (seed {1000 * (k + 1) + seed}): "
@@ -660,7 +663,11 @@ def main() -> None:
     ap.add_argument("--skip-done", action="store_true",
                     help="leave out scenes that already have a result")
     ap.add_argument("--out", type=Path, default=None, help="markdown file to update")
+    ap.add_argument("--synth-set", action="append", default=[], metavar="KEY=VALUE",
+                    help="an r2s synth option for every scene (repeatable), e.g. "
+                         "realism=realsense")
     args = ap.parse_args()
+    synth_set = dict(kv.split("=", 1) for kv in args.synth_set)
     size = tuple(int(v) for v in args.size.lower().split("x"))
 
     jobs = [("clean", s, False) for s in range(args.clean_from, args.clean)]
@@ -674,7 +681,7 @@ def main() -> None:
         result = scene / ("bench_diagnose_oracle.json" if oracle else "bench_diagnose.json")
         if not args.table_only and not (args.skip_done and result.is_file()):
             t0 = time.perf_counter()
-            scene = make_scene(args.root, case, seed, args.count, size)
+            scene = make_scene(args.root, case, seed, args.count, size, synth_set)
             if oracle:
                 import shutil
 

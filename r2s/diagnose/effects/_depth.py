@@ -62,6 +62,13 @@ class DepthBiasEffect(Effect):
         self.preference = preference
         self.signature = SIGNATURE
 
+    @property
+    def quantities(self) -> frozenset:
+        """The depth's scale and/or offset: ``depth_bias`` sets both that ``depth_scale``
+        and ``depth_offset`` set one each."""
+        return frozenset({"depth_scale"} if self.fit_scale else set()) | frozenset(
+            {"depth_offset"} if self.fit_offset else set())
+
     def table_evidence(self, residuals: Residuals) -> tuple[Optional[TableOffsetEvidence], str]:
         """The table's offset evidence when it counts for this effect, and why not when
         it does not ("" when there is none to speak of)."""

@@ -130,6 +130,8 @@ class Effect:
     evidence_block : the block its evidence comes from when noise alone can be redrawn
         there ("registration"), so that a noise bar is measured for it; None otherwise.
     interacts_with : effects whose fits change each other's (refitted jointly).
+    quantities : what in the model its parameters set (default: its own name); two
+        effects that set a common quantity are one refit of it, not two effects.
     """
 
     name: str = ""
@@ -140,6 +142,10 @@ class Effect:
     penalty: float = 0.0
     evidence_block: Optional[str] = None
     interacts_with: frozenset = frozenset()
+
+    @property
+    def quantities(self) -> frozenset:
+        return frozenset({self.name})
 
     def fit(self, residuals: Residuals) -> EffectFit:
         raise NotImplementedError
