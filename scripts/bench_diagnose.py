@@ -663,6 +663,9 @@ def main() -> None:
     ap.add_argument("--skip-done", action="store_true",
                     help="leave out scenes that already have a result")
     ap.add_argument("--out", type=Path, default=None, help="markdown file to update")
+    ap.add_argument("--block", default="bench_diagnose",
+                    help="name of the generated block in --out (another name keeps a second "
+                         "table beside the first)")
     ap.add_argument("--synth-set", action="append", default=[], metavar="KEY=VALUE",
                     help="an r2s synth option for every scene (repeatable), e.g. "
                          "realism=realsense")
@@ -718,7 +721,7 @@ def main() -> None:
     text = table(rows)
     print(text)
     if args.out:
-        write_generated_block(args.out, "bench_diagnose", text)
+        write_generated_block(args.out, args.block, text)
 
 
 if __name__ == "__main__":
