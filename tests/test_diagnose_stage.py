@@ -107,3 +107,38 @@ def test_priors_init_replaced_still_measure_the_depth_scale(tmp_path):
     assert "depth_scale" not in rep["not_identifiable"]
     scale = rep["chosen"][0]["params"]["scale"] if isinstance(rep["chosen"], list) else None
     assert scale == pytest.approx(1.25, abs=0.02)
+
+
+def test_a_depth_read_twice_as_long_is_measured_from_a_start_the_sizes_give(tmp_path):
+    """Depth read 2x long (a depth unit off by 2): init registers each prior at its own
+    size, far from its points (init only warns), and the free-scale fits, searching
+    0.7-1.4 from there, could not reach 2: the report said "No effect". The priors' sizes
+    against the observation give the fits a start (about 2.2 here), from which they reach
+    the scale; depth_scale is named and fitted within 0.05. A right depth leaves the start
+    at exactly 1 (the fits as before)."""
+    from r2s.diagnose.measure.observe import start_scale
+    from r2s.diagnose.measure.scene_dir import (corrected_input, load_input, load_objects,
+                                                registration_objects)
+    from r2s.io.paths import ScenePaths
+    from r2s.io.state import read_state
+    from r2s.runner.pipeline import build_options
+
+    def start_of(scene):
+        paths = ScenePaths(scene)
+        inp = corrected_input(load_input(scene), {})
+        objs = load_objects(paths, "init", read_state(paths.stage_dir("init")), inp)
+        return start_scale(inp, registration_objects(paths, objs, inp))
+
+    init = get_stage("init")
+    right = write_scene(tmp_path / "right")
+    run_stage(init, right, build_options(init, None, {}))
+    assert start_of(right) == 1.0
+
+    scene = write_scene(tmp_path / "scene", depth_scale=2.0)
+    run_stage(init, scene, build_options(init, None, {}))
+    assert start_of(scene) == pytest.approx(2.0, abs=0.3)
+    spec = get_stage("diagnose")
+    run_stage(spec, scene, build_options(spec, None, {"rerun": "false", "plots": "false"}))
+    rep = _report(scene)
+    assert rep["decision"] == ["depth_scale"]
+    assert rep["chosen"][0]["params"]["scale"] == pytest.approx(2.0, abs=0.05)

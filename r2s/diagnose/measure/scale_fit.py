@@ -288,7 +288,9 @@ class _Pose:
 def _gauss_newton_step(model: SurfaceModel, p: np.ndarray, p_cam: np.ndarray,
                        centre: np.ndarray, pose: _Pose, max_d: float, groups: tuple,
                        fit_rotation: bool, view: FreeSpace | None,
-                       free_space_weight: float) -> Optional[np.ndarray]:
+                       free_space_weight: float,
+                       log_scale_bounds: tuple[float, float] = LOG_SCALE_BOUNDS
+                       ) -> Optional[np.ndarray]:
     """One damped, Huber-weighted Gauss-Newton step of the free-scale ICP (updates
     ``pose`` in place); returns the step (rotation, translation, scales; the rotation part
     zero when held), None when too few correspondences are left."""
@@ -330,7 +332,7 @@ def _gauss_newton_step(model: SurfaceModel, p: np.ndarray, p_cam: np.ndarray,
     pose.rot = dR @ pose.rot
     pose.trans = dR @ pose.trans + x[3:6]
     for g, step in zip(groups, x[6:]):
-        pose.log_s[list(g)] = np.clip(pose.log_s[list(g)] + step, *LOG_SCALE_BOUNDS)
+        pose.log_s[list(g)] = np.clip(pose.log_s[list(g)] + step, *log_scale_bounds)
     return x
 
 
@@ -340,7 +342,8 @@ def fit_prior_scale(model: SurfaceModel, points_camera: np.ndarray,
                     iterations_per_level: int = 10, inlier_m: float = 0.003,
                     max_points: int = 1500, fit_scale: bool = True, seed: int = 0,
                     view: FreeSpace | None = None, free_space_weight: float = 1.0,
-                    axes: str = "isotropic", fit_rotation: bool = True) -> ScaleFit:
+                    axes: str = "isotropic", fit_rotation: bool = True,
+                    log_scale_bounds: tuple[float, float] = LOG_SCALE_BOUNDS) -> ScaleFit:
     """Fit pose and scale of a model to observed points.
 
     Parameters
@@ -356,6 +359,7 @@ def fit_prior_scale(model: SurfaceModel, points_camera: np.ndarray,
     axes : a key of :data:`SCALE_AXES`; "across_along" fits one scale across the view and
         one along the optical axis (``ScaleFit.log_scale_axes``), about the points' centroid.
     fit_rotation : False holds the rotation at its start (translation and scale free).
+    log_scale_bounds : the range the fitted log scale is kept in (default 0.7-1.4).
 
     Returns
     -------
@@ -377,7 +381,7 @@ def fit_prior_scale(model: SurfaceModel, points_camera: np.ndarray,
         for _ in range(iterations_per_level):
             x = _gauss_newton_step(model, p, p_cam, centre, pose, max_d,
                                    SCALE_AXES[axes] if with_scale else (), fit_rotation,
-                                   view, free_space_weight)
+                                   view, free_space_weight, log_scale_bounds)
             if x is None or np.abs(x).max() < 1e-7:
                 break
     return _scale_fit(model, p, centre, pose, inlier_m)
