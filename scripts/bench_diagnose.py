@@ -72,6 +72,7 @@ CASES: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
                       ("camera_rotation", "depth_offset")),
     "column_depth": ({}, ()),
     "depth_rotation": ({}, ()),
+    "depth_unit": ({"depth_scale": "2.0"}, ("depth_scale",)),
     "lens+scale+camera": ({"lens_k1": "-0.12", "depth_scale": "1.04", "camera_rotation_deg": "3"},
                           ("lens_distortion", "depth_scale", "camera_rotation")),
 }
@@ -82,7 +83,8 @@ CASES: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
 diagnose should report them as unexplained structure and name nothing. ``scale+radial``
 mixes one of each: a 4 % depth scale (named, sized) and ``radial_depth`` (reported as
 unexplained, report.json's ``unexplained``). ``focal_error`` (:func:`add_focal_error`,
-injected by this script too) is in the catalogue as ``focal_length``."""
+injected by this script too) is in the catalogue as ``focal_length``. ``depth_unit`` is
+a depth read twice as long (a depth unit off by 2): ``depth_scale`` 2.0."""
 
 UNCATALOGUED = {"row_depth", "principal_point_error", "disparity_bias", "dark_depth",
                 "depth_shift", "radial_depth", "column_depth", "depth_rotation"}
