@@ -25,8 +25,8 @@ from r2s.diagnose.measure.physics import (BodySpec, WorldSpec, rollout_motion, s
                                           write_pieces)
 from r2s.diagnose.stats.noise import scale_noise_level
 from r2s.diagnose.stats.table_height import declares_table
-from r2s.diagnose.measure.scale_fit import (LOG_SCALE_BOUNDS, SurfaceModel, fit_prior_scale,
-                                           free_space)
+from r2s.diagnose.measure.scale_fit import (INLIER_M, LOG_SCALE_BOUNDS, SurfaceModel,
+                                           fit_prior_scale, free_space)
 from r2s.geometry.camera import backproject, camera_center, instance_points, pixel_rays
 from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexParams
@@ -120,9 +120,11 @@ def fit_quality(inp: InputScene, obj: ObjectModel, seed: int = 0,
                 scale_start: float = 1.0) -> FitQuality:
     """Free-scale fit for an object with a metric prior, rigid fit otherwise. With a
     ``scale_start`` other than 1 (:func:`start_scale`) a prior is fitted a second time,
-    from there (:func:`start_from_view`) within 0.7-1.4 times it, and the fit that explains
-    more of the observed points is kept: a scene warned about wrongly still has its fit
-    from init's pose at scale 1."""
+    from there (:func:`start_from_view`) within 0.7-1.4 times it, its points counted as
+    fitting within ``INLIER_M`` times that start (the prior's units: a depth read s times
+    long has its noise s times larger too), and the fit that explains more of the observed
+    points is kept: a scene warned about wrongly still has its fit from init's pose at
+    scale 1."""
     pts = object_points_camera(inp, obj.id)
     if len(pts) < 30:
         return FitQuality(None, 0.0, float("nan"))
@@ -137,6 +139,7 @@ def fit_quality(inp: InputScene, obj: ObjectModel, seed: int = 0,
         other = fit_prior_scale(model, pts,
                                 start_from_view(obj.mesh, object_from_camera, pts, scale_start),
                                 seed=seed, view=view, free_space_weight=0.5,
+                                inlier_m=INLIER_M * scale_start,
                                 log_scale_bounds=(LOG_SCALE_BOUNDS[0] + shift,
                                                   LOG_SCALE_BOUNDS[1] + shift))
         if (other.fitness, -other.rmse_m) > (fit.fitness, -fit.rmse_m):

@@ -58,6 +58,8 @@ MAX_STEP = 0.05
 """Largest step per iteration: radians, log scale, half correspondence distances."""
 
 LOG_SCALE_BOUNDS = (float(np.log(0.7)), float(np.log(1.4)))
+INLIER_M = 0.003
+"""A point fits when it lies within this distance (m, the observation's units) of the model."""
 
 
 @dataclass(frozen=True)
@@ -339,7 +341,7 @@ def _gauss_newton_step(model: SurfaceModel, p: np.ndarray, p_cam: np.ndarray,
 def fit_prior_scale(model: SurfaceModel, points_camera: np.ndarray,
                     object_from_camera: np.ndarray,
                     schedule_m: tuple[float, ...] = (0.02, 0.01, 0.005, 0.003),
-                    iterations_per_level: int = 10, inlier_m: float = 0.003,
+                    iterations_per_level: int = 10, inlier_m: float = INLIER_M,
                     max_points: int = 1500, fit_scale: bool = True, seed: int = 0,
                     view: FreeSpace | None = None, free_space_weight: float = 1.0,
                     axes: str = "isotropic", fit_rotation: bool = True,
