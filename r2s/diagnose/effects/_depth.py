@@ -66,8 +66,8 @@ class DepthBiasEffect(Effect):
     def quantities(self) -> frozenset:
         """The depth's scale and/or offset: ``depth_bias`` sets both that ``depth_scale``
         and ``depth_offset`` set one each."""
-        return frozenset({"depth_scale"} if self.fit_scale else set()) | frozenset(
-            {"depth_offset"} if self.fit_offset else set())
+        return frozenset(q for q, fitted in (("depth_scale", self.fit_scale),
+                                             ("depth_offset", self.fit_offset)) if fitted)
 
     def table_evidence(self, residuals: Residuals) -> tuple[Optional[TableOffsetEvidence], str]:
         """The table's offset evidence when it counts for this effect, and why not when
