@@ -81,16 +81,18 @@ RIGHT_UNIT_SIZE_RATIO = 1.29
 middle of the 1.08-1.53 measured on 41 such scenes (docs/diagnose.md, section 2)."""
 
 
-def start_scale(inp: InputScene, objects: list[ObjectModel]) -> float:
+def start_scale(inp: InputScene, objects: list[ObjectModel],
+                points: Optional[dict[int, np.ndarray]] = None) -> float:
     """Where the free-scale fits start: 1, or, when the priors taken together are another
     size than the depth shows (init's warning,
     :func:`r2s.geometry.sanity.priors_disagree_with_depth`; a depth unit off by 2, say),
-    the depth scale their sizes suggest, ``RIGHT_UNIT_SIZE_RATIO / median ratio``."""
+    the depth scale their sizes suggest, ``RIGHT_UNIT_SIZE_RATIO / median ratio``.
+    ``points``: id -> :func:`object_points_camera` where already computed."""
     ratios = []
     for o in objects:
         if o.prior_area_m2 is None or o.prior_area_m2 <= 0:
             continue
-        pts = object_points_camera(inp, o.id)
+        pts = points[o.id] if points is not None else object_points_camera(inp, o.id)
         if len(pts) >= 30:
             ratios.append(prior_size_ratio(o.mesh, pts))
     if priors_disagree_with_depth(ratios) is None:
@@ -117,15 +119,16 @@ def start_from_view(mesh: trimesh.Trimesh, object_from_camera: np.ndarray,
 
 
 def fit_quality(inp: InputScene, obj: ObjectModel, seed: int = 0,
-                scale_start: float = 1.0) -> FitQuality:
+                scale_start: float = 1.0, pts: Optional[np.ndarray] = None) -> FitQuality:
     """Free-scale fit for an object with a metric prior, rigid fit otherwise. With a
     ``scale_start`` other than 1 (:func:`start_scale`) a prior is fitted a second time,
     from there (:func:`start_from_view`) within 0.7-1.4 times it, its points counted as
     fitting within ``INLIER_M`` times that start (the prior's units: a depth read s times
     long has its noise s times larger too), and the fit that explains more of the observed
     points is kept: a scene warned about wrongly still has its fit from init's pose at
-    scale 1."""
-    pts = object_points_camera(inp, obj.id)
+    scale 1. ``pts``: its :func:`object_points_camera` where already computed."""
+    if pts is None:
+        pts = object_points_camera(inp, obj.id)
     if len(pts) < 30:
         return FitQuality(None, 0.0, float("nan"))
     view = free_space(inp.camera.K, inp.depth_m, inp.masks == obj.id)
@@ -402,8 +405,9 @@ def interaction_residual(spec: WorldSpec, base: PhysicsModel, push: Push, observ
 def measure_fit_qualities(inp: InputScene, objects: list[ObjectModel],
                           progress: ProgressFn = silent_progress) -> dict[int, FitQuality]:
     out = {}
-    scale = start_scale(inp, objects)
+    points = {o.id: object_points_camera(inp, o.id) for o in objects}
+    scale = start_scale(inp, objects, points)
     for k, o in enumerate(objects):
         progress(f"registration of object {o.id}", k / max(len(objects), 1))
-        out[o.id] = fit_quality(inp, o, scale_start=scale)
+        out[o.id] = fit_quality(inp, o, scale_start=scale, pts=points[o.id])
     return out
