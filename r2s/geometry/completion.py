@@ -233,8 +233,12 @@ def _fill(values: np.ndarray, known: np.ndarray, xs: np.ndarray, ys: np.ndarray)
     unknown = ~known
     if unknown.any():
         dst = np.stack([gx[unknown], gy[unknown]], axis=1)
-        lin = (griddata(src, values[known], dst, method="linear")
-               if len(src) >= 4 else np.full(len(dst), np.nan))
+        lin = np.full(len(dst), np.nan)
+        if len(src) >= 4:
+            try:
+                lin = griddata(src, values[known], dst, method="linear")
+            except QhullError:  # the known nodes on one line of the grid: nearest only
+                pass
         miss = ~np.isfinite(lin)
         if miss.any():
             _, nn = cKDTree(src).query(dst[miss])

@@ -52,6 +52,7 @@ import trimesh
 from PIL import Image
 from pydantic import Field
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from r2s.errors import InputError, StageError
 from r2s.forked_map import forked_map
@@ -62,6 +63,7 @@ from r2s.geometry.colors import color_mesh_from_image, has_appearance
 from r2s.geometry.border_extension import border_cap_points
 from r2s.geometry.completion import (NO_BRIDGE, RELAXED_BRIDGE, STRICT_BRIDGE, BridgeGuards,
                                       CompletedShape, complete_from_points)
+from r2s.geometry.hidden_carrier import HiddenTop, hidden_tops
 from r2s.geometry.hidden_overlap import lift_onto_plane, sunk_too_far, yield_hidden_overlaps
 from r2s.geometry.hidden_partition import Claimant, exclusion, overlaps
 from r2s.geometry.free_space import view_constraint
@@ -290,6 +292,11 @@ class Options(StageOptions):
                           "space others own: in every column where another object's top "
                           "lies below its top, its base rests on that object instead of "
                           "reaching down to the table (see geometry/completion.py).")
+    completion_hidden_tops: bool = Field(
+        True, description="A completed object that shows no top of its own (a face only) "
+                          "and carries another object whose lowest points touch its top "
+                          "edge gets a hidden top under that object, and the carried "
+                          "object stands on it (see geometry/hidden_carrier.py).")
     completion_bridge_alternative: bool = Field(
         True, description="When a completed object lying across others is not bridged "
                            "only because of the strict guards, also complete it with "
@@ -682,7 +689,11 @@ def _complete_shape(scene: InputScene, spec: ObjectSpec, observed: dict, plane: 
                     bridge_guards: BridgeGuards = STRICT_BRIDGE) -> CompletedShape:
     """:func:`_complete`'s :class:`r2s.geometry.completion.CompletedShape`."""
     pts, pix = observed[spec.id]
-    others = [observed[j][0] for j in sorted(observed) if j != spec.id] or None
+    tops = _hidden_tops(scene, observed, plane, o)
+    others = [(tops[j].support_world(observed[j][0], plane.point, plane.normal)
+               if j in tops and tops[j].carried_id == spec.id
+               else _with_hidden_top(observed[j][0], tops, j))
+              for j in sorted(observed) if j != spec.id] or None
     cam = scene.camera
     depth = scene.depth_m[pix[:, 0], pix[:, 1]]
     pixel_m = float(np.median(depth)) / float(cam.K[0, 0])
@@ -718,10 +729,14 @@ def _complete_shape(scene: InputScene, spec: ObjectSpec, observed: dict, plane: 
                                          max_extent_m=o.completion_border_extent_m,
                                          others_world=np.concatenate(others) if others
                                          else None)
+    own_top = _with_hidden_top(np.zeros((0, 3)), tops, spec.id)
+    top_src = (cKDTree(pts).query(own_top)[1] if len(own_top) and len(pts)
+               else np.zeros(0, dtype=np.int64))
+    own_top = own_top[:len(top_src)]
     try:
-        both_pix = np.concatenate([pix, filled_pix, pix[cap_src]])
+        both_pix = np.concatenate([pix, filled_pix, pix[cap_src], pix[top_src]])
         parts = part_labels(both_pix, own_px)[0] if o.completion_footprint_by_part else None
-        shape = complete_from_points(np.concatenate([pts, filled, cap]), plane.point,
+        shape = complete_from_points(np.concatenate([pts, filled, cap, own_top]), plane.point,
                                      plane.normal,
                                      colors=scene.rgb[both_pix[:, 0], both_pix[:, 1]],
                                      cell_m=o.completion_cell_m, below_points_world=others,
@@ -735,6 +750,26 @@ def _complete_shape(scene: InputScene, spec: ObjectSpec, observed: dict, plane: 
     except ValueError as exc:
         raise StageError(f"object {spec.id}: completion failed ({exc})") from None
     return shape
+
+
+def _hidden_tops(scene: InputScene, observed: dict, plane: PlaneFit, o: Options
+                 ) -> dict[int, HiddenTop]:
+    """Carrier id -> the hidden top under what it carries (geometry/hidden_carrier.py),
+    for objects completed from the observation (a registered prior keeps its shape). Made
+    from the observed points alone, so every completion of the scene sees the same."""
+    if not o.completion_hidden_tops:
+        return {}
+    return hidden_tops({i: p for i, (p, _) in observed.items()}, plane.point, plane.normal,
+                       scene.camera.world_from_camera[:3, 3], cell_m=o.completion_cell_m,
+                       carriers={s.id for s in scene.objects if s.prior_mesh is None})
+
+
+def _with_hidden_top(points: np.ndarray, tops: dict[int, HiddenTop], obj_id: int
+                     ) -> np.ndarray:
+    """(N + M, 3) ``points`` and object ``obj_id``'s hidden top points, if it has any."""
+    if obj_id not in tops:
+        return points
+    return np.concatenate([points, tops[obj_id].points_world])
 
 
 def _final_shapes(ctx: StageContext, scene: InputScene, observed: dict,
@@ -855,7 +890,9 @@ def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple
     for obj_id, (mesh, world_from_object, _) in shapes.items():
         m = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
         posed[obj_id] = m.apply_transform(world_from_object)
-    claimant = {j: Claimant(posed[j], observed[j][0], shapes[j][2] is not None)
+    tops = _hidden_tops(scene, observed, plane, o)
+    claimant = {j: Claimant(posed[j], _with_hidden_top(observed[j][0], tops, j),
+                            shapes[j][2] is not None)
                 for j in shapes}
     redo, bridged = {}, {}
     for spec in scene.objects:

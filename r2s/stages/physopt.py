@@ -166,7 +166,18 @@ def run(ctx: StageContext) -> dict:
     return {"source": src, "objects": len(state.objects),
             "still_moving": len(opt.moving(final)), "rounds": len(log["rounds"]) - 1,
             "flagged_objects": len(flags),
-            "warnings": [f"object {i}: {reason}" for i, reason in sorted(flags.items())]}
+            "warnings": ([f"object {i}: {reason}" for i, reason in sorted(flags.items())]
+                         + _not_at_rest(final, opt))}
+
+
+def _not_at_rest(final: dict[int, tuple[float, float]], opt: Options) -> list[str]:
+    """One line per object that still fails the judge's criterion in physopt's last check
+    (``final``: id -> (COM translation m, rotation deg) over the check): the scene does not
+    rest, and the user is told so rather than finding out in evaluate."""
+    return [f"object {i}: does not rest in physopt's last check (moved {1000 * t:.0f} mm, "
+            f"turned {r:.0f} deg over {opt.verify_duration_s:g} s)"
+            for i, (t, r) in sorted(final.items())
+            if t >= opt.judge_translation_m or r >= opt.judge_rotation_deg]
 
 
 def _new_log(src: str, order: list[int], parents: dict, pieces: "_Pieces") -> dict:
