@@ -1,9 +1,9 @@
 #!/usr/bin/env python
 """Which scenes have a carrier whose top is hidden by what it carries? One line per find.
 
-Runs r2s/geometry/hidden_carrier.py's test on each scene's init/ output (the observed
-points init saved, its support plane) and input/camera.json, for the objects init
-completed (a registered prior keeps its shape). Where gt/ exists, the line also gives the
+Runs init's search for hidden tops (r2s/geometry/hidden_carrier.py on the observed points
+as init cleans them) on each scene's input/ with the support plane init/ fitted, for the
+objects without a prior (a registered prior keeps its shape). Where gt/ exists, the line also gives the
 share of the hidden top's points, 5 mm under it, that lie inside the carrier's true mesh
 (1.0: the truth does carry the other object there). Scenes with no find print nothing;
 the last line counts the scenes read. Nothing is written.
@@ -24,7 +24,11 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from r2s.geometry.hidden_carrier import hidden_tops  # noqa: E402
+from r2s.geometry.plane import PlaneFit  # noqa: E402
+from r2s.io.input_scene import load_input  # noqa: E402
+from r2s.io.manifest import load_manifest  # noqa: E402
+from r2s.scene_model import corrected_input  # noqa: E402
+from r2s.stages.init import Options, _hidden_tops, _object_points  # noqa: E402
 
 
 def _truth_share(scene: Path, carrier: int, points_world: np.ndarray,
@@ -45,14 +49,15 @@ def _truth_share(scene: Path, carrier: int, points_world: np.ndarray,
 
 def scan(scene: Path) -> list[str]:
     state = json.loads((scene / "init" / "state.json").read_text())
-    camera = json.loads((scene / "input" / "camera.json").read_text())
     point, normal = (np.asarray(state["support"][k], dtype=np.float64)
                      for k in ("point", "normal"))
-    points = {o["id"]: np.load(scene / "init" / o["observed_points"])
-              for o in state["objects"] if o.get("observed_points")}
-    completed = {o["id"] for o in state["objects"] if o["source"] == "completed"}
-    tops = hidden_tops(points, point, normal, np.asarray(camera["world_from_camera"])[:3, 3],
-                       carriers=completed)
+    plane = PlaneFit(point=point, normal=normal, inliers=np.zeros(0, dtype=bool))
+    options = Options()
+    manifest = scene / "manifest.json"
+    model = load_manifest(manifest).model if manifest.exists() else None
+    data = corrected_input(load_input(scene), model)  # as init reads it: fragments merged
+    observed = {spec.id: _object_points(data, spec.id, options, plane) for spec in data.objects}
+    tops = _hidden_tops(data, observed, plane, options)
     lines = []
     for carrier, top in sorted(tops.items()):
         share = _truth_share(scene, carrier, top.points_world, normal / np.linalg.norm(normal))

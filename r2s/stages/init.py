@@ -688,25 +688,18 @@ def _complete_shape(scene: InputScene, spec: ObjectSpec, observed: dict, plane: 
                     under: Sequence[trimesh.Trimesh] = (),
                     bridge_guards: BridgeGuards = STRICT_BRIDGE) -> CompletedShape:
     """:func:`_complete`'s :class:`r2s.geometry.completion.CompletedShape`."""
-    pts, pix = observed[spec.id]
-    tops = _hidden_tops(scene, observed, plane, o)
+    tops = getattr(observed, "hidden_tops", {})
     others = [(tops[j].support_world(observed[j][0], plane.point, plane.normal)
                if j in tops and tops[j].carried_id == spec.id
                else _with_hidden_top(observed[j][0], tops, j))
               for j in sorted(observed) if j != spec.id] or None
     cam = scene.camera
-    depth = scene.depth_m[pix[:, 0], pix[:, 1]]
-    pixel_m = float(np.median(depth)) / float(cam.K[0, 0])
+    raw_pix = observed[spec.id][1]
+    pixel_m = float(np.median(scene.depth_m[raw_pix[:, 0], raw_pix[:, 1]])) / float(cam.K[0, 0])
+    pts, pix = _clean_points(scene, spec.id, *observed[spec.id], plane, o)
     own = scene.masks == spec.id
     own_px = np.argwhere(own)
     other_masks = (scene.masks > 0) & ~own
-    if o.completion_clean_points:
-        other_px = np.argwhere(other_masks)
-        keep = object_point_mask(pts, pix, depth, plane.point, plane.normal,
-                                 neighbour_pixels=other_px,
-                                 neighbour_depth_m=scene.depth_m[other_px[:, 0], other_px[:, 1]],
-                                 mask_pixels=own_px if o.completion_parts_by_mask else None)
-        pts, pix = pts[keep], pix[keep]
     filled, filled_pix = fill_mask_holes(own, scene.depth_m, pix, cam.K,
                                          cam.world_from_camera, o.completion_fill_holes_px,
                                          others=other_masks,
@@ -752,11 +745,39 @@ def _complete_shape(scene: InputScene, spec: ObjectSpec, observed: dict, plane: 
     return shape
 
 
+def _clean_points(scene: InputScene, obj_id: int, pts: np.ndarray, pix: np.ndarray,
+                  plane: PlaneFit, o: Options) -> tuple[np.ndarray, np.ndarray]:
+    """The object's observed points (N, 3) world and pixels (N, 2) without those that are
+    not its own (bleed onto the table or a neighbour, flying pixels:
+    geometry/point_cleanup.py), when ``completion_clean_points``."""
+    if not o.completion_clean_points:
+        return pts, pix
+    own = scene.masks == obj_id
+    other_px = np.argwhere((scene.masks > 0) & ~own)
+    keep = object_point_mask(pts, pix, scene.depth_m[pix[:, 0], pix[:, 1]], plane.point,
+                             plane.normal, neighbour_pixels=other_px,
+                             neighbour_depth_m=scene.depth_m[other_px[:, 0], other_px[:, 1]],
+                             mask_pixels=np.argwhere(own) if o.completion_parts_by_mask
+                             else None)
+    return pts[keep], pix[keep]
+
+
+class ObservedPoints(dict):
+    """id -> (points (N, 3) world, pixels (N, 2) row, col) of every object, as
+    :func:`_object_points` gives them, and ``hidden_tops``: carrier id -> the hidden top
+    under what it carries (:func:`_hidden_tops`), made once for every completion."""
+
+    hidden_tops: dict[int, HiddenTop] = {}
+
+
 def _hidden_tops(scene: InputScene, observed: dict, plane: PlaneFit, o: Options
                  ) -> dict[int, HiddenTop]:
     """Carrier id -> the hidden top under what it carries (geometry/hidden_carrier.py),
     for objects completed from the observation (a registered prior keeps its shape). Made
-    from the observed points alone, so every completion of the scene sees the same."""
+    once from the observed points as they are: the mixed pixels where two masks meet are
+    part of the evidence that one object touches the other (measured: with the points as
+    a completion cleans them, a cup standing on a can whose lid it hides was no longer
+    found; docs/completion.md)."""
     if not o.completion_hidden_tops:
         return {}
     return hidden_tops({i: p for i, (p, _) in observed.items()}, plane.point, plane.normal,
@@ -890,7 +911,7 @@ def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple
     for obj_id, (mesh, world_from_object, _) in shapes.items():
         m = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
         posed[obj_id] = m.apply_transform(world_from_object)
-    tops = _hidden_tops(scene, observed, plane, o)
+    tops = getattr(observed, "hidden_tops", {})
     claimant = {j: Claimant(posed[j], _with_hidden_top(observed[j][0], tops, j),
                             shapes[j][2] is not None)
                 for j in shapes}
@@ -1083,7 +1104,9 @@ def run(ctx: StageContext) -> dict:
         support = support[np.sort(rng.choice(len(support), o.support_points_max, replace=False))]
     np.save(out / "support_points.npy", support.astype(np.float32))
 
-    observed = {spec.id: _object_points(scene, spec.id, o, plane) for spec in scene.objects}
+    observed = ObservedPoints({spec.id: _object_points(scene, spec.id, o, plane)
+                               for spec in scene.objects})
+    observed.hidden_tops = _hidden_tops(scene, observed, plane, o)
     # probably-wrong inputs and results, one line each
     flags: list[str] = (list(scene.warnings) + _support_flags(plane, observed, o)
                         + _prior_size_flags(scene, observed))
