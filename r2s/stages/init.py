@@ -64,6 +64,7 @@ from r2s.geometry.border_extension import border_cap_points
 from r2s.geometry.completion import (NO_BRIDGE, RELAXED_BRIDGE, STRICT_BRIDGE, BridgeGuards,
                                       CompletedShape, complete_from_points)
 from r2s.geometry.hidden_carrier import HiddenTop, hidden_tops
+from r2s.geometry.hidden_support import support_extension
 from r2s.geometry.hidden_overlap import lift_onto_plane, sunk_too_far, yield_hidden_overlaps
 from r2s.geometry.hidden_partition import Claimant, exclusion, overlaps
 from r2s.geometry.free_space import view_constraint
@@ -297,6 +298,11 @@ class Options(StageOptions):
                           "and carries another object whose lowest points touch its top "
                           "edge gets a hidden top under that object, and the carried "
                           "object stands on it (see geometry/hidden_carrier.py).")
+    completion_hidden_supports: bool = Field(
+        True, description="A completed object whose centre of mass is not over what its "
+                          "base touches gets the least continuation of one completed "
+                          "carrier's top under it that carries it (the part of the carrier "
+                          "it hides; see geometry/hidden_support.py).")
     completion_bridge_alternative: bool = Field(
         True, description="When a completed object lying across others is not bridged "
                            "only because of the strict guards, also complete it with "
@@ -785,6 +791,44 @@ def _hidden_tops(scene: InputScene, observed: dict, plane: PlaneFit, o: Options
                        carriers={s.id for s in scene.objects if s.prior_mesh is None})
 
 
+def _extend_hidden_supports(scene: InputScene, observed: ObservedPoints,
+                            shapes: dict[int, tuple], plane: PlaneFit, o: Options
+                            ) -> dict[int, int]:
+    """Per completed object whose centre of mass is not over what its base touches, the
+    least continuation of one completed carrier's top under it
+    (geometry/hidden_support.py), added to ``observed.hidden_tops`` (a carrier with a
+    hidden top already keeps it); the carriers are completed again with it, in place in
+    ``shapes``. Judged on the first completions, so the result does not depend on the
+    order of the objects. Returns carried id -> carrier id."""
+    if not o.completion_hidden_supports:
+        return {}
+    posed = {i: _posed(mesh, pose) for i, (mesh, pose, _) in shapes.items()
+             if mesh is not None}
+    completed = sorted(i for i in posed if shapes[i][2] is None)
+    priors = {i: m for i, m in posed.items() if i not in completed}
+    added: dict[int, HiddenTop] = {}
+    found: dict[int, int] = {}
+    for b in completed:
+        carriers = {a: posed[a] for a in completed if a != b and a not in observed.hidden_tops}
+        ext = support_extension(posed[b], carriers, priors, plane.point, plane.normal,
+                                carried_id=b)
+        if ext is None:
+            continue
+        found[b] = ext.carrier_id
+        before = added.get(ext.carrier_id)
+        added[ext.carrier_id] = ext if before is None else HiddenTop(
+            before.carrier_id, before.carried_id, before.height_m,
+            np.concatenate([before.points_world, ext.points_world]))
+    if not added:
+        return found
+    observed.hidden_tops = {**observed.hidden_tops, **added}
+    specs = {spec.id: spec for spec in scene.objects}
+    for a in sorted(added):
+        mesh, world_from_object = _complete(scene, specs[a], observed, plane, o)
+        shapes[a] = (mesh, world_from_object, None)
+    return found
+
+
 def _with_hidden_top(points: np.ndarray, tops: dict[int, HiddenTop], obj_id: int
                      ) -> np.ndarray:
     """(N + M, 3) ``points`` and object ``obj_id``'s hidden top points, if it has any."""
@@ -1116,6 +1160,7 @@ def run(ctx: StageContext) -> dict:
     ctx.progress("fit priors to the view", 0.8)
     ious = _fit_priors(scene, priors, shapes, plane, o)
     _fallback_to_completion(scene, observed, shapes, ious, plane, o, flags)
+    supports = _extend_hidden_supports(scene, observed, shapes, plane, o)
     ctx.progress("prior or completion", 0.85)
     choices, alternates, replaced = _choose_prior_or_completion(scene, observed, shapes, plane,
                                                                 o, flags)
@@ -1152,6 +1197,14 @@ def run(ctx: StageContext) -> dict:
     write_state(out, SceneState(stage="init", gravity=list(DEFAULT_GRAVITY),
                                 support=_support_plane(plane), objects=objects, **unsegmented))
     ctx.progress("done", 1.0)
+    summary = _summary(objects, rmses, choices, plane, unsegmented, scene)
+    return {**summary, "hidden_supports": {str(b): a for b, a in sorted(supports.items())},
+            "flags": flags}
+
+
+def _summary(objects: list[ObjectState], rmses: list[float], choices: dict, plane: PlaneFit,
+             unsegmented: dict, scene: InputScene) -> dict:
+    """The stage summary's figures on the objects saved."""
     finite = [r for r in rmses if np.isfinite(r)]
     fitnesses = [float(ob.icp_fitness) for ob in objects if ob.source != "silhouette"]
     return {
@@ -1164,7 +1217,6 @@ def run(ctx: StageContext) -> dict:
         "support_inlier_fraction": round(float(plane.inliers.mean()), 4),
         "unsegmented_regions": len(unsegmented.get(UNSEGMENTED_KEY, [])),
         "skipped": [i for i in scene.skipped_ids if i not in {ob.id for ob in objects}],
-        "flags": flags,
     }
 
 
