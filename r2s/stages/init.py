@@ -773,7 +773,9 @@ class ObservedPoints(dict):
     :func:`_object_points` gives them, and ``hidden_tops``: carrier id -> the hidden top
     under what it carries (:func:`_hidden_tops`), made once for every completion."""
 
-    hidden_tops: dict[int, HiddenTop] = {}
+    def __init__(self, points: dict[int, tuple[np.ndarray, np.ndarray]]) -> None:
+        super().__init__(points)
+        self.hidden_tops: dict[int, HiddenTop] = {}
 
 
 def _hidden_tops(scene: InputScene, observed: dict, plane: PlaneFit, o: Options
