@@ -101,7 +101,11 @@ def support_extension(carried_world: trimesh.Trimesh,
     contact = base < CONTACT_M  # on the table
     touching: dict[int, tuple[np.ndarray, float]] = {}
     for obj_id, mesh in {**others_world, **carriers_world}.items():
-        top = _heights(mesh.copy().apply_transform(plane_from_world), xy, from_above=True)
+        local = mesh.copy().apply_transform(plane_from_world)
+        (lx0, ly0, _), (lx1, ly1, _) = local.bounds
+        if lx0 > x1 or lx1 < x0 or ly0 > y1 or ly1 < y0:
+            continue  # nowhere under it
+        top = _heights(local, xy, from_above=True)
         with np.errstate(invalid="ignore"):  # sunk into the top counts as touching it
             on = np.isfinite(top) & (base - top < CONTACT_M) & (base > top - 4 * CONTACT_M)
         contact |= on
