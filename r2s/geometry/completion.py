@@ -271,7 +271,7 @@ def _support_height(pts: np.ndarray, below: np.ndarray | list[np.ndarray] | None
     object, whose side passes the level where the object's visible part ends, not a
     support under it: a support's top is below everything seen of what rests on it), and
     none when they would lift the object by more than ``lift_m`` at the centre of its
-    observed points while that centre is not over their convex hull (:func:`_over`). The
+    observed points while that centre is not over their convex hull (:func:`centre_over`). The
     plane fitted to them is raised
     to their ``envelope_percentile`` (what rests on a curved surface rests on its top),
     capped at the object's own lowest observed point. ``below`` given as a list (one array
@@ -302,20 +302,23 @@ def _support_height(pts: np.ndarray, below: np.ndarray | list[np.ndarray] | None
     coef[2] += float(np.percentile(sel[:, 2] - a @ coef, envelope_percentile))
     coef[2] = min(coef[2], z_low - float(np.mean(coef[:2] @ pts[:, :2].T)))
     centre = pts[:, :2].mean(axis=0)
-    if coef[:2] @ centre + coef[2] > lift_m and not _over(sel[:, :2], centre):
+    if coef[:2] @ centre + coef[2] > lift_m and not centre_over(sel[:, :2], centre):
         return 0.0, None  # what is under its edge only cannot carry it
     return float(sel[:, 2].min()), coef
 
 
-def _over(support_xy: np.ndarray, centre_xy: np.ndarray) -> bool:
+def centre_over(support_xy: np.ndarray, centre_xy: np.ndarray) -> bool:
     """Whether ``centre_xy`` (2,) lies over the convex hull of ``support_xy`` (N, 2): an
     object rests on another only where that one is under its centre, not along one edge
     of it (a cup seen past a marker lying in front of it stands on the table behind the
-    marker; realistic benchmark scene_04)."""
+    marker; realistic benchmark scene_04). False for fewer than 3 points or points on a
+    line (no area to rest on)."""
+    if len(support_xy) < 3:
+        return False
     try:
         return bool(Delaunay(support_xy).find_simplex(centre_xy) >= 0)
     except QhullError:
-        return False  # the candidates lie on a line: no area to rest on
+        return False
 
 
 def _tops_below(meshes_world: Sequence[trimesh.Trimesh], plane_from_world: np.ndarray,

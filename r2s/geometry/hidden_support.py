@@ -27,9 +27,8 @@ from typing import Mapping
 
 import numpy as np
 import trimesh
-from scipy.spatial import Delaunay, QhullError
-
 from r2s.geometry.camera import transform_points
+from r2s.geometry.completion import centre_over
 from r2s.geometry.hidden_carrier import HiddenTop
 from r2s.geometry.plane import world_from_plane
 from r2s.geometry.sdf import raycasting_scene
@@ -61,16 +60,6 @@ def _heights(mesh_plane: trimesh.Trimesh, xy: np.ndarray, from_above: bool) -> n
     t_hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
     z = start - t_hit if from_above else start + t_hit
     return np.where(np.isfinite(t_hit), z, np.nan)
-
-
-def _over(cells: np.ndarray, point_xy: np.ndarray) -> bool:
-    """Whether ``point_xy`` (2,) lies over the convex hull of ``cells`` (N, 2)."""
-    if len(cells) < 3:
-        return False
-    try:
-        return bool(Delaunay(cells).find_simplex(point_xy) >= 0)
-    except QhullError:
-        return False
 
 
 def support_extension(carried_world: trimesh.Trimesh,
@@ -111,12 +100,12 @@ def support_extension(carried_world: trimesh.Trimesh,
         contact |= on
         if obj_id in carriers_world and np.count_nonzero(on) >= MIN_CONTACT_CELLS:
             touching[obj_id] = (on, float(np.median(top[on])))
-    if _over(xy[contact], com):
+    if centre_over(xy[contact], com):
         return None
     best = None
     for obj_id, (on, height) in sorted(touching.items()):
         cells = _continuation(xy, base, on, height, com)
-        if cells is None or not _over(np.concatenate([xy[contact], cells]), com):
+        if cells is None or not centre_over(np.concatenate([xy[contact], cells]), com):
             continue
         if best is None or len(cells) < len(best[2]):
             best = (obj_id, height, cells)
