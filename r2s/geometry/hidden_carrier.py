@@ -79,7 +79,8 @@ class HiddenTop:
         the carried object's base down towards the camera."""
         pts = np.asarray(carrier_points_world, dtype=np.float64).reshape(-1, 3)
         normal = np.asarray(plane_normal, dtype=np.float64)
-        height = (pts - np.asarray(plane_point, dtype=np.float64)) @ (normal / np.linalg.norm(normal))
+        normal = normal / np.linalg.norm(normal)
+        height = (pts - np.asarray(plane_point, dtype=np.float64)) @ normal
         return np.concatenate([pts[height >= self.height_m - EDGE_BAND_M], self.points_world])
 
 
