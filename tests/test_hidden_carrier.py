@@ -142,17 +142,24 @@ def test_init_completes_the_brick_with_its_hidden_top(tmp_path):
     scene = write_input_scene(tmp_path / "scene", objs, width=W, height=H, K=K,
                               world_from_camera=camera, depth_noise_m=NOISE_M)
 
+    records = {}
+
     def bounds(**options) -> dict[int, np.ndarray]:
         run_stage(STAGE, scene, Options(**options), force=True)
         out = ScenePaths(scene).stage_dir("init")
+        state = read_state(out)
+        records.update({o.id: getattr(o, "hidden_top", None) for o in state.objects})
         return {o.id: load_mesh(out / o.mesh).apply_transform(o.pose).bounds
-                for o in read_state(out).objects}
+                for o in state.objects}
 
     found = bounds()
+    assert records[1]["carries"] == 2 and records[2] is None  # the state says it was inferred
+    assert abs(records[1]["height_m"] - BRICK_HEIGHT_M) < 0.003
     brick_depth = found[1][1, 0] - found[1][0, 0]
     assert abs(found[1][1, 0] - BRICK_DEPTH_M / 2) < 0.006, found[1]
     assert abs(brick_depth - BRICK_DEPTH_M) < 0.15 * BRICK_DEPTH_M, found[1]
     assert abs(found[2][0, 2] - BRICK_HEIGHT_M) < 0.005, found[2]
     off = bounds(completion_hidden_tops=False)
+    assert records[1] is None
     assert off[1][1, 0] - off[1][0, 0] < 0.5 * BRICK_DEPTH_M
     assert off[2][0, 2] < 0.01

@@ -1174,11 +1174,7 @@ def run(ctx: StageContext) -> dict:
     posed: list[trimesh.Trimesh] = []
     rmses: list[float] = []
     for spec in scene.objects:
-        extra = {}
-        if spec.id in choices:
-            extra["prior_choice"] = choices[spec.id]
-        if spec.id in yielded:
-            extra["hidden_overlap"] = yielded[spec.id]
+        extra = _state_extras(spec.id, choices, yielded, observed, shapes)
         state, mesh_w, rmse, more = _save_object(spec, shapes[spec.id], observed[spec.id][0],
                                                  out, o, table_extent_m, extra or None)
         objects.append(state)
@@ -1202,6 +1198,25 @@ def run(ctx: StageContext) -> dict:
     summary = _summary(objects, rmses, choices, plane, unsegmented, scene)
     return {**summary, "hidden_supports": {str(b): a for b, a in sorted(supports.items())},
             "flags": flags}
+
+
+def _state_extras(obj_id: int, choices: dict, yielded: dict, observed: dict,
+                  shapes: dict[int, tuple]) -> dict:
+    """More keys of an object's init/state.json entry: ``prior_choice`` (the scores of
+    prior and completion), ``hidden_overlap`` (what a prior yielded) and, for a completed
+    object whose top under another was inferred (a hidden top or a continuation under
+    what it carries), ``hidden_top``: the id it carries, the top's height over the table
+    (m) and the number of points it added."""
+    extra: dict = {}
+    if obj_id in choices:
+        extra["prior_choice"] = choices[obj_id]
+    if obj_id in yielded:
+        extra["hidden_overlap"] = yielded[obj_id]
+    top = getattr(observed, "hidden_tops", {}).get(obj_id)
+    if top is not None and shapes[obj_id][2] is None:
+        extra["hidden_top"] = {"carries": top.carried_id, "height_m": round(top.height_m, 4),
+                               "points": len(top.points_world)}
+    return extra
 
 
 def _summary(objects: list[ObjectState], rmses: list[float], choices: dict, plane: PlaneFit,
