@@ -95,7 +95,8 @@ def hidden_tops(points_world: dict[int, np.ndarray], plane_point: np.ndarray,
     (None: any; an object with a registered prior keeps its shape). When an object would
     carry several, the one whose footprint adds most points is kept.
     """
-    plane_from_world = np.linalg.inv(world_from_plane(plane_point, plane_normal))
+    world_from_pl = world_from_plane(plane_point, plane_normal)
+    plane_from_world = np.linalg.inv(world_from_pl)
     eye = transform_points(plane_from_world, np.asarray(eye_world, dtype=np.float64)[None])[0]
     local = {}
     for i, p in points_world.items():
@@ -115,7 +116,7 @@ def hidden_tops(points_world: dict[int, np.ndarray], plane_point: np.ndarray,
             top = _hidden_top(pa, pb, eye, cell_m)
             if top is None:
                 continue
-            pts = transform_points(np.linalg.inv(plane_from_world), top[1])
+            pts = transform_points(world_from_pl, top[1])
             if a not in out or len(pts) > len(out[a].points_world):
                 out[a] = HiddenTop(a, b, top[0], pts)
     return out

@@ -27,6 +27,7 @@ from typing import Mapping
 
 import numpy as np
 import trimesh
+
 from r2s.geometry.camera import transform_points
 from r2s.geometry.completion import centre_over
 from r2s.geometry.hidden_carrier import HiddenTop
