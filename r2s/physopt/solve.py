@@ -15,6 +15,7 @@ import numpy as np
 from r2s.console import ProgressFn
 from r2s.io.state import SceneState
 from r2s.physopt.contact_foot import with_foot
+from r2s.physopt.diffsim_guard import keep_diffsim_where_it_rests
 from r2s.physopt.object_opt import optimise_objects
 from r2s.physopt.observation_bound import ObservationBound, displacement_flags
 from r2s.physopt.params import Drift, Params
@@ -50,7 +51,11 @@ def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
     start = {i: p.world_from_object for i, p in params.items()}
     if opt.use_diffsim:
         free = [i for i in order if params[i].movable]
-        params = optimise_objects(params, meshes, state, free, opt, log, progress)
+        stepped = optimise_objects(params, meshes, state, free, opt, log, progress)
+        params = (keep_diffsim_where_it_rests(
+            make_world, params, stepped, [o.id for o in state.objects],
+            {o.id for o in state.objects if o.source != "prior"}, opt, log)
+            if opt.diffsim_guard else stepped)
     if opt.foot_height_m > 0:
         give_feet(make_world, pieces, params, [o.id for o in state.objects], state, opt, log)
     centres = {i: m.centroid for i, m in meshes.items()}

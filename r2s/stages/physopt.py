@@ -66,6 +66,11 @@ class Options(StageOptions, RepairSettings, DiffsimSettings):
                                                    "result and stay fixed.")
     use_diffsim: bool = Field(True, description="Optimise each object through the torch "
                                                 "simulator before the PyBullet check.")
+    diffsim_guard: bool = Field(True, description="Put a completed object the torch step "
+                                                  "leaves moving in PyBullet's check back to "
+                                                  "its pose and COM before the step, where it "
+                                                  "moves much less there "
+                                                  "(physopt/diffsim_guard.py).")
     convex_method: ConvexMethod = Field(DEFAULT_CONVEX.method,
                                         description="Convex decomposition: vhacd or coacd "
                                                     "(same as export).")
