@@ -84,25 +84,18 @@ def test_a_start_that_falls_further_is_not_restored():
 
 
 @pytest.mark.slow
-def test_a_start_that_falls_more_than_half_as_far_is_not_restored():
-    # cube 2 drops 15 cm without the step and 20 cm with it: less, but not half; the
-    # step's result stays (STEP_FACTOR)
-    before = {1: _on_edge(0.0, 0.0), 2: _on_edge(0.15, 0.0, lift_m=0.15)}
+@pytest.mark.parametrize("lift_before_m, restored", [(0.15, False), (0.05, True)])
+def test_a_start_is_restored_only_when_it_falls_at_most_half_as_far(lift_before_m, restored):
+    # cube 2 drops 20 cm after the step; without it 15 cm (more than half: the step's
+    # result stays) or 5 cm (under half: put back, and the repair rounds take it from
+    # there); STEP_FACTOR
+    before = {1: _on_edge(0.0, 0.0), 2: _on_edge(0.15, 0.0, lift_m=lift_before_m)}
     after = {1: _on_edge(0.0, 0.0), 2: _on_edge(0.15, 0.0, lift_m=0.2)}
-    _, after_p, out, log, moving = _guard(before, after)
-    assert log["diffsim_reverted"] == []
-    assert out is after_p
+    before_p, after_p, out, log, moving = _guard(before, after)
+    assert log["diffsim_reverted"] == ([2] if restored else [])
+    assert out[2] is (before_p[2] if restored else after_p[2])
+    assert out[1] is after_p[1]
     assert moving == [2]
-
-
-@pytest.mark.slow
-def test_a_start_that_falls_under_half_as_far_is_restored():
-    before = {1: _on_edge(0.0, 0.0), 2: _on_edge(0.15, 0.0, lift_m=0.05)}
-    after = {1: _on_edge(0.0, 0.0), 2: _on_edge(0.15, 0.0, lift_m=0.2)}
-    before_p, _, out, log, moving = _guard(before, after)
-    assert log["diffsim_reverted"] == [2]
-    assert out[2] is before_p[2]
-    assert moving == [2]  # it still drops 5 cm: the repair rounds take it from there
 
 
 @pytest.mark.slow
