@@ -13,8 +13,8 @@ import trimesh
 
 from r2s.io.state import ObjectState, SceneState, SupportPlane
 from r2s.physopt.hierarchy import order_root_to_leaves, parents_from_graph
-from r2s.physopt.params import (INNER_BOX_MARGIN, initial_params, inner_box, is_moving,
-                                keep_previous, moving_objects)
+from r2s.physopt.params import (INNER_BOX_MARGIN, drift_in_tolerances, initial_params,
+                                inner_box, is_moving, keep_previous, moving_objects)
 
 
 def _edge(child: int, parent: int, in_tree: bool, likelihood: float) -> dict:
@@ -98,3 +98,10 @@ def test_one_moving_test():
     assert is_moving((0.0051, 0.0, ), 0.005, 2.0)
     assert is_moving((0.0, 2.01), 0.005, 2.0)
     assert moving_objects({4: (0.0, 0.0), 2: (0.1, 0.0), 7: (0.0, 9.0)}, 0.005, 2.0) == [2, 7]
+
+
+def test_drift_in_tolerances_is_the_larger_ratio_and_agrees_with_is_moving():
+    assert drift_in_tolerances((0.010, 1.0), 0.005, 2.0) == pytest.approx(2.0, abs=1e-12)
+    assert drift_in_tolerances((0.001, 6.0), 0.005, 2.0) == pytest.approx(3.0, abs=1e-12)
+    for d in [(0.004, 1.9), (0.006, 0.0), (0.0, 2.5), (0.0049, 2.0)]:
+        assert is_moving(d, 0.005, 2.0) == (drift_in_tolerances(d, 0.005, 2.0) > 1.0)

@@ -5,7 +5,7 @@ The torch step (:mod:`r2s.physopt.object_opt`) balances each object's wrench aga
 neighbours in a simplified contact model. Its balance can disagree with PyBullet, the judge:
 a small object on a sloped, decomposed carrier was balanced there by a 6.5 mm COM shift and
 a 2.4 mm pose change, and then toppled in PyBullet, where from its pose before the step it
-settled by 2.5 mm (docs/physopt.md, "The differentiable step can topple what rested").
+settled by 2.5 mm (docs/physopt.md, "The step answers to PyBullet").
 
 Registered priors are left as the step left them. A prior the step had to move is evidence
 that its shape is wrong, which the swap to its completion reads from how far the solve moved
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from typing import Collection
 
-from r2s.physopt.params import Drift, Params
+from r2s.physopt.params import Drift, Params, drift_in_tolerances
 from r2s.physopt.repair import check, judge_orders
 
 
@@ -34,14 +34,10 @@ rounds: on fresh4 scene_03 (priors) two priors that fell 68-81 mm without the st
 (docs/physopt.md)."""
 
 
-def _severity(d: tuple[float, float], tolerance_m: float, tolerance_deg: float) -> float:
-    """A drift in units of the at-rest tolerance (the larger of translation and rotation)."""
-    return max(d[0] / tolerance_m, d[1] / tolerance_deg)
-
-
 def _total(drift: Drift, ids: list[int], opt) -> float:
-    return sum(_severity(drift.get(i, (0.0, 0.0)), opt.tolerance_m, opt.tolerance_deg)
-               for i in ids)
+    """The drifts of ``ids`` summed in at-rest tolerances (an id not in ``drift``: 0)."""
+    return sum(drift_in_tolerances(drift.get(i, (0.0, 0.0)), opt.tolerance_m,
+                                   opt.tolerance_deg) for i in ids)
 
 
 def keep_diffsim_where_it_rests(make_world, before: Params, after: Params,

@@ -130,6 +130,14 @@ def is_moving(drift: tuple[float, float], tolerance_m: float, tolerance_deg: flo
     return translation_m > tolerance_m or rotation_deg > tolerance_deg
 
 
+def drift_in_tolerances(drift: tuple[float, float], tolerance_m: float,
+                        tolerance_deg: float) -> float:
+    """How far a drift goes, in units of the at-rest tolerance: the larger of translation /
+    ``tolerance_m`` and rotation / ``tolerance_deg`` (above 1: :func:`is_moving`)."""
+    translation_m, rotation_deg = drift
+    return max(translation_m / tolerance_m, rotation_deg / tolerance_deg)
+
+
 def moving_objects(drifts: Drift, tolerance_m: float, tolerance_deg: float) -> list[int]:
     """Ids whose drift counts as moving, in ``drifts``' order."""
     return [i for i, d in drifts.items() if is_moving(d, tolerance_m, tolerance_deg)]
