@@ -702,10 +702,10 @@ def _complete_shape(scene: InputScene, spec: ObjectSpec, observed: dict, plane: 
     cam = scene.camera
     raw_pix = observed[spec.id][1]
     pixel_m = float(np.median(scene.depth_m[raw_pix[:, 0], raw_pix[:, 1]])) / float(cam.K[0, 0])
-    pts, pix = _clean_points(scene, spec.id, *observed[spec.id], plane, o)
     own = scene.masks == spec.id
     own_px = np.argwhere(own)
     other_masks = (scene.masks > 0) & ~own
+    pts, pix = _clean_points(scene, *observed[spec.id], own_px, other_masks, plane, o)
     filled, filled_pix = fill_mask_holes(own, scene.depth_m, pix, cam.K,
                                          cam.world_from_camera, o.completion_fill_holes_px,
                                          others=other_masks,
@@ -728,10 +728,10 @@ def _complete_shape(scene: InputScene, spec: ObjectSpec, observed: dict, plane: 
                                          max_extent_m=o.completion_border_extent_m,
                                          others_world=np.concatenate(others) if others
                                          else None)
-    own_top = _with_hidden_top(np.zeros((0, 3)), tops, spec.id)
-    top_src = (cKDTree(pts).query(own_top)[1] if len(own_top) and len(pts)
-               else np.zeros(0, dtype=np.int64))
-    own_top = own_top[:len(top_src)]
+    # the hidden top's points take their pixel (for colour and parts) from the nearest seen one
+    own_top = (_with_hidden_top(np.zeros((0, 3)), tops, spec.id) if len(pts)
+               else np.zeros((0, 3)))
+    top_src = cKDTree(pts).query(own_top)[1] if len(own_top) else np.zeros(0, dtype=np.int64)
     try:
         both_pix = np.concatenate([pix, filled_pix, pix[cap_src], pix[top_src]])
         parts = part_labels(both_pix, own_px)[0] if o.completion_footprint_by_part else None
@@ -751,20 +751,20 @@ def _complete_shape(scene: InputScene, spec: ObjectSpec, observed: dict, plane: 
     return shape
 
 
-def _clean_points(scene: InputScene, obj_id: int, pts: np.ndarray, pix: np.ndarray,
-                  plane: PlaneFit, o: Options) -> tuple[np.ndarray, np.ndarray]:
+def _clean_points(scene: InputScene, pts: np.ndarray, pix: np.ndarray, own_px: np.ndarray,
+                  other_masks: np.ndarray, plane: PlaneFit, o: Options
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """The object's observed points (N, 3) world and pixels (N, 2) without those that are
     not its own (bleed onto the table or a neighbour, flying pixels:
-    geometry/point_cleanup.py), when ``completion_clean_points``."""
+    geometry/point_cleanup.py), when ``completion_clean_points``. ``own_px`` (K, 2): its
+    mask's pixels; ``other_masks`` (H, W) bool: the other objects' masks."""
     if not o.completion_clean_points:
         return pts, pix
-    own = scene.masks == obj_id
-    other_px = np.argwhere((scene.masks > 0) & ~own)
+    other_px = np.argwhere(other_masks)
     keep = object_point_mask(pts, pix, scene.depth_m[pix[:, 0], pix[:, 1]], plane.point,
                              plane.normal, neighbour_pixels=other_px,
                              neighbour_depth_m=scene.depth_m[other_px[:, 0], other_px[:, 1]],
-                             mask_pixels=np.argwhere(own) if o.completion_parts_by_mask
-                             else None)
+                             mask_pixels=own_px if o.completion_parts_by_mask else None)
     return pts[keep], pix[keep]
 
 
