@@ -84,10 +84,12 @@ def main() -> None:
     parser.add_argument("--iou-gain", type=float, default=ChoiceMargins.iou_gain)
     parser.add_argument("--ucd-gain-mm", type=float, default=ChoiceMargins.ucd_gain_mm)
     parser.add_argument("--free-space-slack", type=float, default=ChoiceMargins.free_space_slack)
+    parser.add_argument("--large-iou-gain", type=float, default=ChoiceMargins.large_iou_gain)
     parser.add_argument("--set", dest="init_set", action="append", default=[],
                         metavar="KEY=VALUE", help="another init option, for both runs")
     args = parser.parse_args()
-    margins = ChoiceMargins(args.iou_gain, args.ucd_gain_mm, args.free_space_slack)
+    margins = ChoiceMargins(args.iou_gain, args.ucd_gain_mm, args.free_space_slack,
+                            args.large_iou_gain)
     print("| scene | id | prior IoU / UCD / free | completion IoU / UCD / free "
           "| alone on the table: prior / completion moved mm, turned deg, COM drop mm "
           "| lowest point above the table: prior / completion mm | CD prior [mm] "

@@ -59,12 +59,26 @@ def test_scores_of_the_true_shape_and_of_a_box_too_long():
 
 def test_choose_needs_every_margin():
     prior = ViewScore(iou=0.70, ucd_mm=5.0, free_space=0.05)
-    margins = ChoiceMargins(iou_gain=0.1, ucd_gain_mm=1.0, free_space_slack=0.02)
+    margins = ChoiceMargins(iou_gain=0.1, ucd_gain_mm=1.0, free_space_slack=0.02,
+                            large_iou_gain=1.0)  # the second rule off
     assert choose(prior, ViewScore(0.85, 2.0, 0.01), margins)[0] == "completion"
     assert choose(prior, ViewScore(0.79, 2.0, 0.01), margins)[0] == "prior"  # IoU gain 0.09
     assert choose(prior, ViewScore(0.85, 4.5, 0.01), margins)[0] == "prior"  # UCD gain 0.5
     assert choose(prior, ViewScore(0.85, 2.0, 0.08), margins)[0] == "prior"  # free +0.03
     assert choose(prior, ViewScore(0.85, 2.0, 0.065), margins)[0] == "completion"
+
+
+def test_a_far_better_silhouette_needs_no_ucd_margin():
+    """fresh7 scene_01's cup: the prior's silhouette IoU 0.635, UCD 1.83 mm, free space
+    0.013; the completion's 0.838, 1.38 mm, 0. Its UCD gain (0.45 mm) misses the 1 mm
+    margin, its IoU gain (0.20) clears the large one (0.10)."""
+    prior = ViewScore(iou=0.635, ucd_mm=1.83, free_space=0.013)
+    margins = ChoiceMargins()
+    assert choose(prior, ViewScore(0.838, 1.38, 0.0), margins)[0] == "completion"
+    assert choose(prior, ViewScore(0.838, 1.84, 0.0), margins)[0] == "prior"   # UCD 0.01 worse
+    assert choose(prior, ViewScore(0.730, 1.38, 0.0), margins)[0] == "prior"   # IoU gain 0.095
+    assert choose(prior, ViewScore(0.838, 1.38, 0.034), margins)[0] == "prior"  # free +0.021
+    assert choose(prior, ViewScore(0.838, 1.38, 0.032), margins)[0] == "completion"
 
 
 @pytest.mark.slow

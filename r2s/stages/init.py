@@ -192,6 +192,10 @@ class Options(StageOptions):
     prior_choice_free_space_slack: float = Field(0.02, ge=0, description="'auto': ... and "
                                                  "its free-space violation may exceed the "
                                                  "prior's by at most this.")
+    prior_choice_large_iou_gain: float = Field(0.10, ge=0, le=1, description="'auto': a "
+                                               "completion whose silhouette IoU exceeds the "
+                                               "prior's by at least this replaces it with any "
+                                               "UCD gain (none lost) and the free-space slack.")
     prior_choice_rest: bool = Field(True, description="'auto': also set the prior and the "
                                     "completion of an object standing alone on the table "
                                     "down there and roll each out for 1 s; a prior that "
@@ -574,6 +578,7 @@ def _choose_prior_or_completion(scene: InputScene, observed: dict, shapes: dict[
     specs = {spec.id: spec for spec in scene.objects}
     posed = {i: _posed(mesh, pose) for i, (mesh, pose, _) in shapes.items()}
     margins = ChoiceMargins(iou_gain=o.prior_choice_iou_gain,
+                            large_iou_gain=o.prior_choice_large_iou_gain,
                             ucd_gain_mm=o.prior_choice_ucd_gain_mm,
                             free_space_slack=o.prior_choice_free_space_slack)
     def judge(i: int) -> tuple[Optional[tuple], dict, Optional[str]]:
