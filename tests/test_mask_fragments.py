@@ -115,8 +115,8 @@ def test_a_declared_id_is_kept_over_a_larger_undeclared_piece():
 def test_a_thin_split_with_depth_missing_along_the_cut_is_one_object():
     """A marker 10 px thick cut across into ids 3 and 6: 10 boundary pairs, depth read on
     only 5 of them (dark, thin: holes). Joined when at least 4 pairs carry depth (the rule
-    before asked for 8), and not on 2 (too little to tell a split from two objects
-    touching)."""
+    before asked for 8), and not when no reading lies within 3 px of the cut (nothing to
+    tell a split from two objects touching)."""
     masks = np.zeros((H, W), np.int32)
     masks[35:45, 20:80], masks[35:45, 80:100] = 3, 6
     rgb = _image((30, 30, 30), (30, 30, 30), 70)
@@ -127,7 +127,28 @@ def test_a_thin_split_with_depth_missing_along_the_cut_is_one_object():
     assert (ev.pairs, ev.boundary_pairs) == (5, 10)
     parents = fragment_parents(masks, depth, rgb)
     assert parents and parents[6][0] == 3
-    depth[35:38, 79:81] = np.nan                                       # 2 rows read
+    depth[35:45, 76:84] = np.nan             # no reading within 3 px of the cut
+    assert boundary_evidence(masks, depth, rgb)[0].pairs == 0
+    assert fragment_parents(masks, depth, rgb) == {}
+
+
+def test_a_split_read_only_a_few_pixels_from_the_cut_is_judged_on_those_readings():
+    """The same marker, with no reading on either side of the cut (2 px each way) but one
+    3 px or less away: each boundary pixel takes its side's nearest reading, 10 pairs, the
+    plane's depth on both sides, joined. With the right piece 3 cm behind the left one
+    (two objects, one in front of the other), the filled pairs show the jump and the ids
+    stay apart."""
+    masks = np.zeros((H, W), np.int32)
+    masks[35:45, 20:80], masks[35:45, 80:100] = 3, 6
+    rgb = _image((30, 30, 30), (30, 30, 30), 70)
+    depth = _plane_depth()
+    depth[35:45, 78:82] = np.nan
+    ev = boundary_evidence(masks, depth, rgb)[0]
+    assert (ev.pairs, ev.boundary_pairs, ev.continuous_fraction) == (10, 10, 1.0)
+    assert fragment_parents(masks, depth, rgb)[6][0] == 3
+    depth[:, 80:] += 0.03
+    ev = boundary_evidence(masks, depth, rgb)[0]
+    assert (ev.pairs, ev.continuous_fraction) == (10, 0.0)
     assert fragment_parents(masks, depth, rgb) == {}
 
 

@@ -78,6 +78,14 @@ and that the rule before did not join: 8 pairs, all pieces of one object (colour
 distances 13.8-39.9 in 6, 73.5 and 192.8 in 2); no pair of different objects."""
 MIN_STRIP_PX = 8
 """A strip with fewer pixels past the bleed band is taken whole (bleed band included)."""
+DEPTH_FILL_PX = 3
+"""Where fewer than ``MIN_VALID_PAIRS`` pixel pairs across a boundary have readings on both
+sides, a pixel without one takes the nearest reading of its own id within this many pixels
+(``_filled_depth``): on dark or shiny objects the sensor reads a fifth of the pixels or
+fewer, and a split through such an object (a jenga block of the piles set, 21 and 31 %
+valid on its two pieces) left 2 of 63 boundary pairs, too few to judge. Only then: filled
+on every boundary, one split that 5 raw pairs join (continuous 1.0) read 0.84 continuous
+over 31 filled pairs, under the bar (realistic scene_04's mustard bottle)."""
 MIN_PAIRS = 8
 MIN_VALID_PAIRS = 4
 MIN_OUTLINE_FRACTION = 0.05
@@ -91,7 +99,9 @@ MERGE_ROUNDS = 3
 class BoundaryEvidence:
     """What the shared boundary of two mask ids says.
 
-    pairs : 4-neighbour pixel pairs across the boundary with valid depth on both sides.
+    pairs : 4-neighbour pixel pairs across the boundary with valid depth on both sides
+        (where fewer than ``MIN_VALID_PAIRS`` have it, a missing reading is taken from its
+        side's nearest within ``DEPTH_FILL_PX``).
     continuous_fraction : share of those pairs without a depth jump.
     boundary_pairs : all 4-neighbour pixel pairs across the boundary (a thin object's split
         is short, and depth is often missing along it).
@@ -157,7 +167,9 @@ def boundary_evidence(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
     masks : (H, W) int ids, 0 = none; depth_m : (H, W); rgb : (H, W, 3) uint8.
     """
     m = np.asarray(masks).ravel()
-    z = np.asarray(depth_m, dtype=np.float64).ravel()
+    z_raw = np.asarray(depth_m, dtype=np.float64)
+    z = z_raw.ravel()
+    z_filled = None
     a_all, b_all = (np.concatenate(x) for x in zip(*_pairs(np.asarray(masks))))
     cross = (m[a_all] != m[b_all]) & (m[a_all] > 0) & (m[b_all] > 0)
     a_all, b_all = a_all[cross], b_all[cross]
@@ -170,6 +182,11 @@ def boundary_evidence(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
         sel = (lo == i) & (hi == j)
         za, zb = z[a_all[sel]], z[b_all[sel]]
         valid = np.isfinite(za) & np.isfinite(zb) & (za > 0) & (zb > 0)
+        if valid.sum() < MIN_VALID_PAIRS:
+            if z_filled is None:
+                z_filled = _filled_depth(np.asarray(masks), z_raw).ravel()
+            za, zb = z_filled[a_all[sel]], z_filled[b_all[sel]]
+            valid = np.isfinite(za) & np.isfinite(zb) & (za > 0) & (zb > 0)
         n_valid = int(valid.sum())
         jump = np.maximum(jump_min_m, jump_fraction * np.minimum(za[valid], zb[valid]))
         continuous = float(np.mean(np.abs(za[valid] - zb[valid]) < jump)) if n_valid else 0.0
@@ -183,6 +200,26 @@ def boundary_evidence(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
             outline_fraction=_outline_fraction(crop_masks, small, large),
             boundary_pairs=int(sel.sum()), colour_set_distance=set_dist,
             small_px=int(sizes[small]), large_px=int(sizes[large])))
+    return out
+
+
+def _filled_depth(masks: np.ndarray, depth_m: np.ndarray, radius_px: int = DEPTH_FILL_PX
+                  ) -> np.ndarray:
+    """(H, W) ``depth_m`` with each masked pixel that has no reading (NaN or <= 0) given the
+    reading of the nearest pixel of the same id that has one, within ``radius_px``
+    (Euclidean); other pixels keep theirs (NaN where none is near)."""
+    out = depth_m.copy()
+    valid = np.isfinite(depth_m) & (depth_m > 0)
+    for obj_id in np.unique(masks[(masks > 0) & ~valid]):
+        window = _pair_window(masks, int(obj_id), int(obj_id))
+        own = masks[window] == obj_id
+        own_valid = own & valid[window]
+        if not own_valid.any():
+            continue
+        dist, (rows, cols) = ndimage.distance_transform_edt(~own_valid, return_indices=True)
+        fill = own & ~valid[window] & (dist <= radius_px)
+        crop = out[window]
+        crop[fill] = depth_m[window][rows[fill], cols[fill]]
     return out
 
 
