@@ -229,3 +229,25 @@ def test_ycb5_ground_truth_stays_close_and_ends_penetration_free(tmp_path):
     assert s["after_max_penetration_table_mm"] < 1.0
     assert s["after_max_support_gap_mm"] < 2.0
     assert s["max_translation_mm"] < 10.0 and s["max_rotation_deg"] < 5.0
+
+
+def test_a_child_the_graph_found_no_support_for_is_not_pulled_to_the_table(tmp_path):
+    """A 30 mm cube wedged 60 mm up between two 120 mm posts: nothing lies under it (the
+    posts are taller), so the graph's fallback parent is the table with H = 0 (a 60 mm
+    gap against its 50 mm scale). With every edge's contact term the cube is pulled most
+    of the way down between the posts; with the fallback edge left out it stays where it
+    was seen (to a millimetre), and physopt decides where it rests."""
+    objs = [box(1, (0.04, 0.04, 0.12), (0.0, 0.0, 0.06)),
+            box(2, (0.04, 0.04, 0.12), (0.0712, 0.0, 0.06)),
+            box(3, (0.03, 0.03, 0.03), (0.0356, 0.0, 0.075))]
+    heights = {}
+    for bar in (0.0, 0.25):
+        scene = write_init_state(tmp_path / f"s{bar}", objs)
+        run_stage(graph.STAGE, scene)
+        edge = [e for e in json.loads((scene / "graph" / "contact_graph.json").read_text())["support_edges"]
+                if e["child"] == 3 and e["in_tree"]][0]
+        assert edge["parent"] == 0 and edge["likelihood"] == pytest.approx(0.0)
+        run_stage(geomopt.STAGE, scene, FAST.model_copy(update={"min_support_likelihood": bar}))
+        heights[bar] = float(world_vertices(scene, 3)[:, 2].min())
+    assert heights[0.25] == pytest.approx(0.06, abs=1e-3)
+    assert heights[0.0] < 0.06 - 0.02

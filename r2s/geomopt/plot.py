@@ -25,7 +25,8 @@ def loss_plot(history: dict[str, list[float]], title: str = "geometry optimisati
     ax.set_ylabel("loss (mm-scaled)")
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    if ax.get_lines():  # all terms zero (nothing to optimise): an empty plot, no legend
+        ax.legend(fontsize=7)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", bbox_inches="tight")
     plt.close(fig)

@@ -56,6 +56,7 @@ class Options(StageOptions):
     sdf_resolution: int = Field(128, ge=8, le=512, description="SDF voxels per axis (the most per axis when sdf_voxel_size_m is set)")
     sdf_voxel_size_m: Optional[float] = Field(0.0015, gt=0, description="SDF voxels of about this size, at most sdf_resolution and at least 16 per axis (small objects get small grids); None: always sdf_resolution")
     all_supporters: bool = Field(True, description="contact term for extra supporters too (not only the tree parent)")
+    min_support_likelihood: float = Field(0.25, ge=0.0, le=1.0, description="a support edge whose likelihood H is under this gets no contact term: the graph found nothing under that child (the table far below a wedged ball; 0.25 is the graph's own bar for a supporter); 0: every edge")
     contact_rotates: bool = Field(False, description="let the contact term rotate objects and move them sideways (default: only along gravity)")
     support_vertical: bool = Field(True, description="penetration between a child and its supporter moves them along gravity only")
     seed: int = Field(0, description="seed of the surface samples")
@@ -105,7 +106,8 @@ def solve_poses(paths: ScenePaths, model: dict, state: SceneState, meshes: list,
     problem = build_problem(ids, meshes, np.stack([o.pose for o in state.objects]), grids, graph,
                             np.asarray(state.support.point), np.asarray(state.support.normal),
                             samples=opts.samples, seed=opts.seed,
-                            all_supporters=opts.all_supporters, gravity=np.asarray(state.gravity))
+                            all_supporters=opts.all_supporters, gravity=np.asarray(state.gravity),
+                            min_support_likelihood=opts.min_support_likelihood)
     if opts.lambda_free_space > 0:
         problem.view = _view(paths, ids, model)
     if opts.anchor_sideways_ratio != 1.0 and paths.camera.is_file():
