@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections import defaultdict
+from dataclasses import fields
 from pathlib import Path
 
 import numpy as np
@@ -75,13 +76,10 @@ def scene_rows(scene: Path, margins: ChoiceMargins) -> list[dict]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scenes", nargs="+", type=Path)
-    ap.add_argument("--iou-gain", type=float, default=ChoiceMargins.iou_gain)
-    ap.add_argument("--ucd-gain-mm", type=float, default=ChoiceMargins.ucd_gain_mm)
-    ap.add_argument("--free-space-slack", type=float, default=ChoiceMargins.free_space_slack)
-    ap.add_argument("--large-iou-gain", type=float, default=ChoiceMargins.large_iou_gain)
+    for f in fields(ChoiceMargins):  # --iou-gain, --ucd-gain-mm, ... with their defaults
+        ap.add_argument("--" + f.name.replace("_", "-"), type=float, default=f.default)
     args = ap.parse_args()
-    margins = ChoiceMargins(args.iou_gain, args.ucd_gain_mm, args.free_space_slack,
-                            args.large_iou_gain)
+    margins = ChoiceMargins(**{f.name: getattr(args, f.name) for f in fields(ChoiceMargins)})
     groups: dict[str, list[dict]] = defaultdict(list)
     print("| scene | id | prior IoU / UCD mm / free | completion IoU / UCD mm / free "
           "| CD prior / completion mm | recorded -> new |")

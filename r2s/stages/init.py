@@ -315,6 +315,13 @@ class Options(StageOptions):
                            "unbridged (its free columns reaching down to the table); for "
                            "physopt to swap in where the first completion cannot rest "
                            "near where it was seen.")
+    completion_table_alternative: bool = Field(
+        True, description="A completed object whose base rests on other objects (more than "
+                          "10 mm above the table) is also completed down to the table "
+                          "through the space hidden from the camera, into init/alternates/ "
+                          "(a top seen above an occluder may belong to something standing "
+                          "behind it); for physopt to swap in where the first completion "
+                          "cannot rest near where it was seen.")
     completion_extend_fraction: float = Field(
         0.0, ge=0, description="Sweep a completed object's footprint towards the camera "
                                "into space hidden by nearer things, by up to this fraction "
@@ -638,8 +645,8 @@ def _save_alternates(out: Path, alternates: dict[int, tuple], scene: InputScene,
     of the completed objects that have one (``bridged``: id -> (mesh, pose, kind);
     ``meshes/<id>.glb``, object frame, and ``state.json`` with its pose), for physopt to
     swap in where the object as init keeps it can rest only far from where it was seen.
-    The second kind carries ``alternate``: ``"bridged completion"`` or ``"unbridged
-    completion"``."""
+    The second kind carries ``alternate``: ``"bridged completion"``, ``"unbridged
+    completion"`` or ``"completion to the table"``."""
     kinds = {i: v[2] for i, v in (bridged or {}).items()}
     alternates = {**alternates, **{i: v[:2] for i, v in (bridged or {}).items()}}
     _save_shapes(out / INIT_ALTERNATES_DIR, alternates, scene, plane, source="completed",
@@ -697,8 +704,11 @@ def _complete(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneF
 def _complete_shape(scene: InputScene, spec: ObjectSpec, observed: dict, plane: PlaneFit,
                     o: Options, exclude: Optional[Callable[[np.ndarray], np.ndarray]] = None,
                     under: Sequence[trimesh.Trimesh] = (),
-                    bridge_guards: BridgeGuards = STRICT_BRIDGE) -> CompletedShape:
-    """:func:`_complete`'s :class:`r2s.geometry.completion.CompletedShape`."""
+                    bridge_guards: BridgeGuards = STRICT_BRIDGE,
+                    stand_on_others: bool = True) -> CompletedShape:
+    """:func:`_complete`'s :class:`r2s.geometry.completion.CompletedShape`; with
+    ``stand_on_others`` False the other objects' points are not taken for what it stands
+    on (its hidden columns reach the table)."""
     tops = getattr(observed, "hidden_tops", {})
     others = [(tops[j].support_world(observed[j][0], plane.point, plane.normal)
                if j in tops and tops[j].carried_id == spec.id
@@ -743,7 +753,8 @@ def _complete_shape(scene: InputScene, spec: ObjectSpec, observed: dict, plane: 
         shape = complete_from_points(np.concatenate([pts, filled, cap, own_top]), plane.point,
                                      plane.normal,
                                      colors=scene.rgb[both_pix[:, 0], both_pix[:, 1]],
-                                     cell_m=o.completion_cell_m, below_points_world=others,
+                                     cell_m=o.completion_cell_m,
+                                     below_points_world=others if stand_on_others else None,
                                      hull_margin_m=o.completion_hull_margin_px * pixel_m,
                                      view=view,
                                      extend_fraction=o.completion_extend_fraction,
@@ -845,17 +856,21 @@ def _with_hidden_top(points: np.ndarray, tops: dict[int, HiddenTop], obj_id: int
 
 
 def _final_shapes(ctx: StageContext, scene: InputScene, observed: dict,
-                  shapes: dict[int, tuple], plane: PlaneFit, o: Options
+                  shapes: dict[int, tuple], plane: PlaneFit, o: Options,
+                  table_alternates: bool = True
                   ) -> tuple[dict[int, dict], dict[int, tuple]]:
     """In place in ``shapes``, the last changes once every object has its shape: hidden
     space shared by completed objects, hidden overlaps of priors, then the completed
     outlines snapped onto the masks. Returns the priors' hidden-overlap records (by id)
     and id -> (mesh, world_from_object, kind) of the completed objects' second completions
-    (:func:`_partition_hidden`), snapped the same way."""
+    (:func:`_partition_hidden`, and with ``table_alternates`` :func:`_table_alternates`),
+    snapped the same way."""
     bridged = {}
     if o.completion_partition_hidden:
         ctx.progress("hidden space shared by completed objects", 0.9)
         bridged = _partition_hidden(scene, observed, shapes, plane, o)
+    if o.completion_table_alternative and table_alternates:
+        bridged.update(_table_alternates(scene, observed, shapes, plane, o, skip=set(bridged)))
     yielded = {}
     if o.prior_yield_hidden_overlap or o.prior_lift_below_table:  # only where priors overlap
         ctx.progress("hidden overlaps of priors", 0.92)
@@ -883,7 +898,7 @@ def _finished_alternates(ctx: StageContext, scene: InputScene, observed: dict,
         return alternates
     together = {i: ((*alternates[i], None) if i in alternates else shape)
                 for i, shape in shapes.items()}
-    _final_shapes(ctx, scene, observed, together, plane, o)
+    _final_shapes(ctx, scene, observed, together, plane, o, table_alternates=False)
     return {i: together[i][:2] for i in alternates}
 
 
@@ -990,6 +1005,42 @@ def _partition_hidden(scene: InputScene, observed: dict, shapes: dict[int, tuple
                                 "bridged completion" if other.bridged
                                 else "unbridged completion")
     return bridged
+
+
+TABLE_ALTERNATIVE_MIN_BASE_M = 0.010
+"""A completed object whose base is this far above the table or more stands on others; its
+completion down to the table is kept as an alternative when that base is lower by at least
+as much."""
+
+
+def _base_height_m(mesh: trimesh.Trimesh, world_from_object: np.ndarray, plane: PlaneFit) -> float:
+    """Lowest point of the posed ``mesh`` above the support plane (metres)."""
+    world = transform_points(world_from_object, mesh.vertices)
+    return float(np.min((world - plane.point) @ plane.normal))
+
+
+def _table_alternates(scene: InputScene, observed: dict, shapes: dict[int, tuple],
+                      plane: PlaneFit, o: Options, skip: set[int]) -> dict[int, tuple]:
+    """id -> (mesh, world_from_object, "completion to the table") of every completed object
+    (not in ``skip``) whose base rests on others, completed again without the others' points
+    as what it stands on, where that brings its base down by ``TABLE_ALTERNATIVE_MIN_BASE_M``
+    or more. Found on the piles set's scene_00: a flat object standing on the table behind
+    a leaning jenga block shows its top above the block and was completed lying on it."""
+    out = {}
+    for spec in scene.objects:
+        mesh, pose, reg = shapes[spec.id]
+        if reg is not None or spec.id in skip or mesh is None:
+            continue
+        base = _base_height_m(mesh, pose, plane)
+        if base < TABLE_ALTERNATIVE_MIN_BASE_M:
+            continue
+        try:
+            other = _complete_shape(scene, spec, observed, plane, o, stand_on_others=False)
+        except StageError:
+            continue
+        if _base_height_m(other.mesh, other.world_from_object, plane) <= base - TABLE_ALTERNATIVE_MIN_BASE_M:
+            out[spec.id] = (other.mesh, other.world_from_object, "completion to the table")
+    return out
 
 
 def _yield_prior_overlaps(observed: dict, shapes: dict[int, tuple], plane: PlaneFit,

@@ -278,8 +278,10 @@ def _at_seen(o: ObjectState, seen: dict[int, np.ndarray]) -> ObjectState:
 
 def _second_completion(o: ObjectState) -> bool:
     """Whether init's alternative ``o`` is a completed object's second completion, lying
-    across others or not (r2s/stages/init.py ``_partition_hidden``)."""
-    return getattr(o, "alternate", None) in ("bridged completion", "unbridged completion")
+    across others or not (r2s/stages/init.py ``_partition_hidden``), or reaching the table
+    where the first stands on others (``_table_alternates``)."""
+    return getattr(o, "alternate", None) in ("bridged completion", "unbridged completion",
+                                             "completion to the table")
 
 
 def _pooled_iou(view: Optional[InputScene], meshes: dict, params: dict) -> Optional[float]:
