@@ -1015,8 +1015,8 @@ as much."""
 
 def _base_height_m(mesh: trimesh.Trimesh, world_from_object: np.ndarray, plane: PlaneFit) -> float:
     """Lowest point of the posed ``mesh`` above the support plane (metres)."""
-    world = transform_points(world_from_object, mesh.vertices)
-    return float(np.min((world - plane.point) @ plane.normal))
+    return float(np.min(signed_distance(transform_points(world_from_object, mesh.vertices),
+                                        plane.point, plane.normal)))
 
 
 def _table_alternates(scene: InputScene, observed: dict, shapes: dict[int, tuple],
