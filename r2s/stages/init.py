@@ -1025,7 +1025,9 @@ def _table_alternates(scene: InputScene, observed: dict, shapes: dict[int, tuple
     (not in ``skip``) whose base rests on others, completed again without the others' points
     as what it stands on, where that brings its base down by ``TABLE_ALTERNATIVE_MIN_BASE_M``
     or more. Found on the piles set's scene_00: a flat object standing on the table behind
-    a leaning jenga block shows its top above the block and was completed lying on it."""
+    a leaning jenga block shows its top above the block and was completed lying on it.
+    Completed from the object's own view alone: the hidden space the partition gave others
+    (:func:`_partition_hidden`) is not kept out, and physopt cuts what overlaps."""
     out = {}
     for spec in scene.objects:
         mesh, pose, reg = shapes[spec.id]

@@ -277,11 +277,11 @@ def _at_seen(o: ObjectState, seen: dict[int, np.ndarray]) -> ObjectState:
 
 
 def _second_completion(o: ObjectState) -> bool:
-    """Whether init's alternative ``o`` is a completed object's second completion, lying
-    across others or not (r2s/stages/init.py ``_partition_hidden``), or reaching the table
-    where the first stands on others (``_table_alternates``)."""
-    return getattr(o, "alternate", None) in ("bridged completion", "unbridged completion",
-                                             "completion to the table")
+    """Whether init's alternative ``o`` is a completed object's second completion: init
+    names the kind of those alone in ``alternate`` (lying across others or not,
+    r2s/stages/init.py ``_partition_hidden``; reaching the table where the first stands on
+    others, ``_table_alternates``), a kept prior's completion carries none."""
+    return getattr(o, "alternate", None) is not None
 
 
 def _pooled_iou(view: Optional[InputScene], meshes: dict, params: dict) -> Optional[float]:
