@@ -15,6 +15,11 @@ it).
 Usage (regenerates the table in docs/diagnose.md between its bench markers; the full set,
 >= 20 clean scenes and 6 per case, singles, pairs and the uncatalogued effect):
   python scripts/bench_diagnose.py --clean 20 --seeds 6 --out docs/diagnose.md
+A case may carry a size factor, ``CASE@FACTOR``: the injected deviations times FACTOR
+(``depth_scale@3`` is a 12 % scale, ``table_tilt@0.5`` a 1.25 deg tilt; :data:`SCALABLE`),
+to see whether what was set at one size holds at others:
+  python scripts/bench_diagnose.py --size 320x240 --stages init --clean 0 --seeds 3 \
+      --cases depth_scale@0.5,camera_rotation@3 --block bench_diagnose_sizes --out docs/diagnose.md
 Scenes live in bench/diagnose/<case>_s<seed> and are reused; per-scene results are kept
 in <scene>/bench_diagnose.json, so ``--table-only`` rebuilds the table without running.
 """
@@ -85,6 +90,30 @@ mixes one of each: a 4 % depth scale (named, sized) and ``radial_depth`` (report
 unexplained, report.json's ``unexplained``). ``focal_error`` (:func:`add_focal_error`,
 injected by this script too) is in the catalogue as ``focal_length``. ``depth_unit`` is
 a depth read twice as long (a depth unit off by 2): ``depth_scale`` 2.0."""
+
+SCALABLE = {"depth_scale": 1.0, "depth_offset_m": 0.0, "camera_rotation_deg": 0.0,
+            "table_tilt_deg": 0.0, "lens_k1": 0.0, "com_offset_m": 0.0}
+"""Synth effects a ``CASE@FACTOR`` case resizes: the deviation from the neutral value (here)
+is multiplied by FACTOR (``depth_scale@2``: 1.08 for 1.04; ``camera_rotation@0.5``: 1.5
+deg). Friction is not resized."""
+
+
+def case_spec(case: str) -> tuple[dict[str, str], tuple[str, ...]]:
+    """(synth effects, effects diagnose should name) of ``case``, ``CASE@FACTOR`` resized."""
+    base, _, factor = case.partition("@")
+    effects, expected = CASES[base]
+    if not factor:
+        return effects, expected
+    f = float(factor)
+    resized = {k: (f"{SCALABLE[k] + f * (float(v) - SCALABLE[k]):.6g}" if k in SCALABLE else v)
+               for k, v in effects.items()}
+    return resized, expected
+
+
+def base_case(case: str) -> str:
+    """``depth_scale`` for ``depth_scale@2``."""
+    return case.partition("@")[0]
+
 
 UNCATALOGUED = {"row_depth", "principal_point_error", "disparity_bias", "dark_depth",
                 "depth_shift", "radial_depth", "column_depth", "depth_rotation"}
@@ -294,8 +323,9 @@ def make_scene(root: Path, case: str, seed: int, count: int, size: tuple[int, in
     from r2s.errors import R2SError
 
     scene = root / f"{case}_s{seed}"
-    pushed = "friction" in CASES[case][0]
-    tries = COM_TRIES if case == "com_offset" else PUSH_TRIES if pushed else 1
+    effects = case_spec(case)[0]
+    pushed = "friction" in effects
+    tries = COM_TRIES if base_case(case) == "com_offset" else PUSH_TRIES if pushed else 1
     for k in range(tries):
         if (scene / "gt" / "scene.json").is_file() and (not pushed or has_observed_push(scene)):
             break
@@ -305,13 +335,13 @@ def make_scene(root: Path, case: str, seed: int, count: int, size: tuple[int, in
         n = count if count > 0 else SCENE_COUNTS[seed % len(SCENE_COUNTS)]
         extra = {"objects": "ycb", **(synth_set or {})}
         synthesize(scene, SynthOptions(count=n, seed=1000 * (k + 1) + seed,
-                                       effects=CASES[case][0], width=size[0], height=size[1],
+                                       effects=effects, width=size[0], height=size[1],
                                        **extra))
-        if case in SCRIPT_INJECT:
-            SCRIPT_INJECT[case](scene)
+        if base_case(case) in SCRIPT_INJECT:
+            SCRIPT_INJECT[base_case(case)](scene)
         print(f"synth {scene.name} (seed {1000 * (k + 1) + seed}): "
               f"{time.perf_counter() - t0:.0f} s", flush=True)
-        if case == "com_offset" and not com_offset_observable(scene):
+        if base_case(case) == "com_offset" and not com_offset_observable(scene):
             print(f"  {scene.name}: the shifted COM does not change the rest pose; next seed",
                   flush=True)
             if k + 1 < tries:
@@ -533,7 +563,7 @@ def row(scene: Path, case: str, seed: int, seconds: float) -> dict:
     gt = report.get("gt_errors") or {}
     before, after = gt.get("before") or {}, gt.get("after") or {}
     injected = before.get("injected_effects") or {}
-    expected = CASES[case][1]
+    expected = case_spec(case)[1]
     decision = report["decision"]
     effects = {}
     for eff in expected:
@@ -544,7 +574,7 @@ def row(scene: Path, case: str, seed: int, seconds: float) -> dict:
     ranking = [f for f in report["ranking"][0] if f["identifiable"]][:3]
     return {
         "scene": scene.name, "case": case, "seed": seed, "expected": list(expected),
-        "uncatalogued": case in UNCATALOGUED, "decision": decision,
+        "uncatalogued": base_case(case) in UNCATALOGUED, "decision": decision,
         "effects": effects,
         "all_named": all(e["named"] for e in effects.values()) if expected else decision == [],
         "named_first": bool(expected) and decision[:1] == [expected[0]] or (
