@@ -82,3 +82,22 @@ def test_the_catalogue_keeps_depth_bias_apart_from_its_own_parts():
     # a scale then an offset are two quantities: that path stays open
     assert "depth_offset" in second_candidates("depth_scale", effects)
     assert "depth_bias" not in second_candidates("depth_scale", effects)
+
+
+def test_the_lookahead_follows_the_fourth_leader_to_the_best_path():
+    # the benchmark's scale+camera@0.5 seed 2 in miniature: three one-step effects lead,
+    # and the scale that, with the camera after it, explains most comes fourth
+    def one(name, explains):
+        return Scripted(name, 1, explains, frozenset({name}))
+
+    effects = {"focal": one("focal", {"start": 40.0}), "offset": one("offset", {"start": 35.0}),
+               "tilt": one("tilt", {"start": 33.0}), "scale": one("scale", {"start": 30.0}),
+               "camera": one("camera", {"start": 5.0, "scale": 30.0})}
+    lead = rank("start", effects, lookahead=True)
+    assert lead.best.effect == "scale"
+    scale_path = next(p for p in lead.paths if p["first"] == "scale")
+    assert scale_path["second"] == "camera"
+    assert scale_path["score"] == pytest.approx(-60.0 + 2 * LOG_N, abs=1e-9)
+    assert len(lead.paths) == 4  # the camera alone (-5 + ln n) is not supported
+    # without the lookahead the greedy leader stands
+    assert rank("start", effects, lookahead=False).best.effect == "focal"

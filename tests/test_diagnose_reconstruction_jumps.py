@@ -73,6 +73,17 @@ def test_the_loop_reverts_a_step_whose_rerun_jumped(tmp_path):
     assert not out.kept and out.flipped
     assert out.reason.startswith("reverted: the claimed residual fell")
     assert "object 2's reconstruction moved 50 mm" in out.reason
+    # a decisive fall (a 12 % depth scale: 99.0 -> 24.3) keeps the step, the flip named
+    decisive = StepJudgement(("table_height", "registration"), 99.0, 23.4, 24.3, True,
+                             "the claimed residual fell 99.0 -> 24.3 (predicted 23.4)")
+    out = _unless_jumped(decisive, before, after, ["init"], LoopConfig())
+    assert out.kept and not out.flipped
+    assert "kept although object 2's reconstruction moved 50 mm" in out.reason
+    assert "a fall of 74.7 is decisive" in out.reason
+    assert not _unless_jumped(decisive, before, after, ["init"],
+                              LoopConfig(decisive_fall=0)).kept
+    assert not _unless_jumped(decisive, before, after, ["init"],
+                              LoopConfig(decisive_fall=80.0)).kept
     # off, or no init rerun: the judgement stands
     assert _unless_jumped(kept, before, after, ["init"], LoopConfig(jump_tolerance_m=0)).kept
     assert _unless_jumped(kept, before, after, ["physopt"], LoopConfig()).kept

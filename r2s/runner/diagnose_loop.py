@@ -62,6 +62,7 @@ class LoopConfig:
     edge_turn_deg: float = MIN_TURN_DEG
     joint_refit: bool = True
     jump_tolerance_m: float = 0.02
+    decisive_fall: float = 25.0
     lookahead: bool = True
 
 
@@ -186,7 +187,11 @@ def _unless_jumped(judgement: StepJudgement, before_root: Path, after_root: Path
     """``judgement``, reverted when the rerun's init moved an object's reconstruction
     further than its observed points moved and away from its support
     (r2s.diagnose.measure.reconstruction_jumps): a fit that flipped off its support is not
-    the effect's doing, and the residual the effect claims cannot tell the twin got worse."""
+    the effect's doing, and the residual the effect claims cannot tell the twin got worse.
+    Unless the claimed residual fell by ``cfg.decisive_fall`` or more: then the effect is
+    beyond doubt, the flip is the fit's instability (a 12 % depth scale, its claimed SSE
+    99 -> 24, moved a 75-point box prior 31 mm further off the table), and the step is kept
+    with the flipped object named in its reason."""
     if not judgement.kept or cfg.jump_tolerance_m <= 0 or "init" not in stages:
         return judgement
     before, after = Path(before_root) / "init", Path(after_root) / "init"
@@ -196,6 +201,11 @@ def _unless_jumped(judgement: StepJudgement, before_root: Path, after_root: Path
              if j.lifts_off()]
     if not jumps:
         return judgement
+    fall = judgement.claimed_before - (judgement.claimed_after or judgement.claimed_before)
+    if cfg.decisive_fall > 0 and fall >= cfg.decisive_fall:
+        return replace(judgement, reason=f"{judgement.reason}; kept although {jumps[0].describe()} "
+                                         f"in the rerun: a fall of {fall:.1f} is decisive, and "
+                                         "that object's fit is unstable (check it)")
     return replace(judgement, kept=False, flipped=True,
                    reason=f"reverted: {judgement.reason}, but {jumps[0].describe()} in the "
                           "rerun: a fit that flipped, not the effect")

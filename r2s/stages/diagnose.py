@@ -62,6 +62,10 @@ class Options(StageOptions):
                                 "reconstruction this much more than its observed points "
                                 "moved (a fit that flipped; r2s/diagnose/measure/"
                                 "reconstruction_jumps.py), m; 0: off.")
+    decisive_fall: float = Field(
+        25.0, ge=0, description="A step whose claimed residual (normalised SSE) fell by at "
+                                "least this is kept even when an object's fit flipped in "
+                                "its rerun (the flip is named in its reason); 0: never.")
     camera_prior_odds: float = Field(
         4.0, gt=0, description="Prior odds of a camera extrinsic error against a tilted table "
                                "when the table is a few degrees off the declared vertical "
@@ -221,6 +225,7 @@ def loop_config(options: Options) -> LoopConfig:
         structure_alpha=options.structure_alpha, colour_z=options.colour_z,
         edge_shift_px=options.edge_shift_px, edge_turn_deg=options.edge_turn_deg,
         joint_refit=options.joint_refit, jump_tolerance_m=options.jump_tolerance_m,
+        decisive_fall=options.decisive_fall,
         lookahead=options.lookahead)
 
 
