@@ -19,7 +19,8 @@ A case may carry a size factor, ``CASE@FACTOR``: the injected deviations times F
 (``depth_scale@3`` is a 12 % scale, ``table_tilt@0.5`` a 1.25 deg tilt; :data:`SCALABLE`),
 to see whether what was set at one size holds at others:
   python scripts/bench_diagnose.py --size 320x240 --stages init --clean 0 --seeds 3 \
-      --cases depth_scale@0.5,camera_rotation@3 --block bench_diagnose_sizes --out docs/diagnose.md
+      --cases depth_scale@0.5,camera_rotation@3
+(docs/diagnose.md section 12 gives the command of its size table.)
 Scenes live in bench/diagnose/<case>_s<seed> and are reused; per-scene results are kept
 in <scene>/bench_diagnose.json, so ``--table-only`` rebuilds the table without running.
 """

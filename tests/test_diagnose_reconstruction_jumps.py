@@ -82,6 +82,10 @@ def test_the_loop_reverts_a_step_whose_rerun_jumped(tmp_path):
     assert "a fall of 74.7 is decisive" in out.reason
     assert not _unless_jumped(decisive, before, after, ["init"],
                               LoopConfig(decisive_fall=0)).kept
+    # a claimed residual that fell to nothing is the largest fall, not none
+    to_zero = StepJudgement(("support",), 361.7, 0.0, 0.0, True,
+                            "the claimed residual fell 361.7 -> 0.0 (predicted 0.0)")
+    assert _unless_jumped(to_zero, before, after, ["init"], LoopConfig()).kept
     assert not _unless_jumped(decisive, before, after, ["init"],
                               LoopConfig(decisive_fall=80.0)).kept
     # off, or no init rerun: the judgement stands

@@ -201,11 +201,13 @@ def _unless_jumped(judgement: StepJudgement, before_root: Path, after_root: Path
              if j.lifts_off()]
     if not jumps:
         return judgement
-    fall = judgement.claimed_before - (judgement.claimed_after or judgement.claimed_before)
+    after = judgement.claimed_after
+    fall = judgement.claimed_before - (judgement.claimed_before if after is None else after)
     if cfg.decisive_fall > 0 and fall >= cfg.decisive_fall:
-        return replace(judgement, reason=f"{judgement.reason}; kept although {jumps[0].describe()} "
-                                         f"in the rerun: a fall of {fall:.1f} is decisive, and "
-                                         "that object's fit is unstable (check it)")
+        return replace(judgement, reason=f"{judgement.reason}; kept although "
+                                         f"{jumps[0].describe()} in the rerun: a fall of "
+                                         f"{fall:.1f} is decisive, and that object's fit is "
+                                         "unstable (check it)")
     return replace(judgement, kept=False, flipped=True,
                    reason=f"reverted: {judgement.reason}, but {jumps[0].describe()} in the "
                           "rerun: a fit that flipped, not the effect")
