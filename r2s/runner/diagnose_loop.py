@@ -201,8 +201,9 @@ def _unless_jumped(judgement: StepJudgement, before_root: Path, after_root: Path
              if j.lifts_off()]
     if not jumps:
         return judgement
-    after = judgement.claimed_after
-    fall = judgement.claimed_before - (judgement.claimed_before if after is None else after)
+    claimed_after = judgement.claimed_after
+    fall = judgement.claimed_before - (judgement.claimed_before if claimed_after is None
+                                       else claimed_after)
     if cfg.decisive_fall > 0 and fall >= cfg.decisive_fall:
         return replace(judgement, reason=f"{judgement.reason}; kept although "
                                          f"{jumps[0].describe()} in the rerun: a fall of "
