@@ -200,8 +200,8 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
     """Solve again with init's alternative shape (``init/alternates/``) in place of every
     object :func:`r2s.physopt.swap_choice.swap_candidates` names (flagged, or a prior moved
     or turned visibly) that has one: a prior's completion, or a completed object's second
-    completion, lying across others or not (``alternate: "bridged completion"`` or
-    ``"unbridged completion"``; ``seen``: id -> where each
+    completion, lying across others or not, to the table, or deepened behind a face
+    (``alternate``: its kind, r2s/stages/init.py ``_save_alternates``; ``seen``: id -> where each
     object was seen, for the first solve);
     (state, pieces, solved, log, mesh files) of that solution when
     :func:`r2s.physopt.swap_choice.prefer_swapped` prefers it, else None (``log`` then
@@ -248,7 +248,8 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
                              _pooled_iou(view, meshes, solved.params))
     after = SolutionSummary(len(solved2.flags), len(opt.moving(solved2.drift)),
                             _pooled_iou(view, meshes2, solved2.params))
-    keep = prefer_swapped(before, after)
+    keep = prefer_swapped(before, after, priors_swapped=any(
+        state.object(i).source == "prior" for i in swap))
     record = {"ids": sorted(swap), "why": {str(i): w for i, w in sorted(why.items())},
               "shapes": {str(i): (o.alternate if _second_completion(o) else "completion")
                          for i, o in sorted(swap.items())},
