@@ -63,6 +63,7 @@ from r2s.geometry.colors import color_mesh_from_image, has_appearance
 from r2s.geometry.border_extension import border_cap_points
 from r2s.geometry.completion import (NO_BRIDGE, RELAXED_BRIDGE, STRICT_BRIDGE, BridgeGuards,
                                       CompletedShape, complete_from_points)
+from r2s.geometry.hidden_back import MIN_DEEPER_M, hidden_back
 from r2s.geometry.hidden_carrier import HiddenTop, hidden_tops
 from r2s.geometry.hidden_support import support_extension
 from r2s.geometry.hidden_overlap import lift_onto_plane, sunk_too_far, yield_hidden_overlaps
@@ -322,6 +323,12 @@ class Options(StageOptions):
                           "(a top seen above an occluder may belong to something standing "
                           "behind it); for physopt to swap in where the first completion "
                           "cannot rest near where it was seen.")
+    completion_deepened_alternative: bool = Field(
+        True, description="A completed object standing on the table that was seen only as "
+                          "a face (something nearer hides its top) is also completed with a "
+                          "hidden back as deep as the face is wide, into init/alternates/ "
+                          "(r2s/geometry/hidden_back.py), for physopt to swap in where the "
+                          "first completion cannot rest near where it was seen.")
     completion_extend_fraction: float = Field(
         0.0, ge=0, description="Sweep a completed object's footprint towards the camera "
                                "into space hidden by nearer things, by up to this fraction "
@@ -646,7 +653,7 @@ def _save_alternates(out: Path, alternates: dict[int, tuple], scene: InputScene,
     ``meshes/<id>.glb``, object frame, and ``state.json`` with its pose), for physopt to
     swap in where the object as init keeps it can rest only far from where it was seen.
     The second kind carries ``alternate``: ``"bridged completion"``, ``"unbridged
-    completion"`` or ``"completion to the table"``."""
+    completion"``, ``"completion to the table"`` or ``"deepened completion"``."""
     kinds = {i: v[2] for i, v in (bridged or {}).items()}
     alternates = {**alternates, **{i: v[:2] for i, v in (bridged or {}).items()}}
     _save_shapes(out / INIT_ALTERNATES_DIR, alternates, scene, plane, source="completed",
@@ -871,6 +878,9 @@ def _final_shapes(ctx: StageContext, scene: InputScene, observed: dict,
         bridged = _partition_hidden(scene, observed, shapes, plane, o)
     if o.completion_table_alternative and table_alternates:
         bridged.update(_table_alternates(scene, observed, shapes, plane, o, skip=set(bridged)))
+    if o.completion_deepened_alternative and table_alternates:
+        bridged.update(_deepened_alternates(scene, observed, shapes, plane, o,
+                                            skip=set(bridged)))
     yielded = {}
     if o.prior_yield_hidden_overlap or o.prior_lift_below_table:  # only where priors overlap
         ctx.progress("hidden overlaps of priors", 0.92)
@@ -1043,6 +1053,53 @@ def _table_alternates(scene: InputScene, observed: dict, shapes: dict[int, tuple
         if _base_height_m(other.mesh, other.world_from_object, plane) <= base - TABLE_ALTERNATIVE_MIN_BASE_M:
             out[spec.id] = (other.mesh, other.world_from_object, "completion to the table")
     return out
+
+
+def _deepened_alternates(scene: InputScene, observed: dict, shapes: dict[int, tuple],
+                         plane: PlaneFit, o: Options, skip: set[int]) -> dict[int, tuple]:
+    """id -> (mesh, world_from_object, "deepened completion") of every completed object
+    (not in ``skip``, without an inferred top) that stands on the table and was seen only
+    as a face: completed again with a hidden back as deep as the face is wide
+    (:mod:`r2s.geometry.hidden_back`), kept where that makes it at least
+    ``hidden_back.MIN_DEEPER_M`` deeper along the view. Found on the piles set's scene_01:
+    a box whose top a can lying over it hides was completed as a slab, and toppled with
+    the can."""
+    out = {}
+    tops = getattr(observed, "hidden_tops", {})
+    eye = scene.camera.world_from_camera[:3, 3]
+    for spec in scene.objects:
+        mesh, pose, reg = shapes[spec.id]
+        if reg is not None or spec.id in skip or spec.id in tops or mesh is None:
+            continue
+        if _base_height_m(mesh, pose, plane) >= TABLE_ALTERNATIVE_MIN_BASE_M:
+            continue
+        back = hidden_back(observed[spec.id][0], plane.point, plane.normal, eye,
+                           cell_m=o.completion_cell_m)
+        if back is None:
+            continue
+        deeper = ObservedPoints(dict(observed))
+        height = float(signed_distance(back[:1], plane.point, plane.normal)[0])
+        deeper.hidden_tops = {**tops, spec.id: HiddenTop(spec.id, -1, height, back)}
+        try:
+            other = _complete_shape(scene, spec, deeper, plane, o)
+        except StageError:
+            continue
+        if _view_depth_m(other.mesh, other.world_from_object, plane, eye) >= \
+                _view_depth_m(mesh, pose, plane, eye) + MIN_DEEPER_M:
+            out[spec.id] = (other.mesh, other.world_from_object, "deepened completion")
+    return out
+
+
+def _view_depth_m(mesh: trimesh.Trimesh, world_from_object: np.ndarray, plane: PlaneFit,
+                  eye_world: np.ndarray) -> float:
+    """Extent of the posed ``mesh`` along the horizontal direction from the camera centre
+    ``eye_world`` (3,) to its centroid (metres)."""
+    verts = transform_points(world_from_object, mesh.vertices)
+    normal = plane.normal / np.linalg.norm(plane.normal)
+    flat = verts - np.outer(verts @ normal, normal)
+    direction = flat.mean(axis=0) - (eye_world - (eye_world @ normal) * normal)
+    along = flat @ (direction / max(float(np.linalg.norm(direction)), 1e-9))
+    return float(along.max() - along.min())
 
 
 def _yield_prior_overlaps(observed: dict, shapes: dict[int, tuple], plane: PlaneFit,
