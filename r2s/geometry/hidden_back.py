@@ -26,9 +26,8 @@ from __future__ import annotations
 import numpy as np
 
 from r2s.geometry.camera import transform_points
-from r2s.geometry.completion import drop_isolated
-from r2s.geometry.hidden_carrier import (MAX_THICKNESS_RATIO, MIN_POINTS, TABLE_BAND_M,
-                                         TOP_PERCENTILE)
+from r2s.geometry.hidden_carrier import (MAX_THICKNESS_RATIO, TOP_PERCENTILE,
+                                         points_above_table, view_axes)
 from r2s.geometry.plane import world_from_plane
 
 MIN_HEIGHT_M = 0.02
@@ -49,23 +48,17 @@ def hidden_back(points_world: np.ndarray, plane_point: np.ndarray, plane_normal:
     """
     world_from_pl = world_from_plane(plane_point, plane_normal)
     plane_from_world = np.linalg.inv(world_from_pl)
-    q = transform_points(plane_from_world,
-                         np.asarray(points_world, dtype=np.float64).reshape(-1, 3))
-    q = q[q[:, 2] > TABLE_BAND_M]
-    if len(q) > 20:
-        q = q[drop_isolated(q)]
-    if len(q) < MIN_POINTS:
+    q = points_above_table(points_world, plane_from_world)
+    if q is None:
         return None
     z_top = float(np.percentile(q[:, 2], TOP_PERCENTILE))
     if z_top < MIN_HEIGHT_M:
         return None
     eye = transform_points(plane_from_world, np.asarray(eye_world, dtype=np.float64)[None])[0]
-    along_dir = q[:, :2].mean(axis=0) - eye[:2]
-    norm = float(np.linalg.norm(along_dir))
-    if norm < 1e-6:
+    axes = view_axes(q, eye)
+    if axes is None:
         return None  # straight above: the top is seen
-    along_dir /= norm
-    across_dir = np.array([-along_dir[1], along_dir[0]])
+    along_dir, across_dir = axes
     along, across = q[:, :2] @ along_dir, q[:, :2] @ across_dir
     near, far = float(np.percentile(along, 5)), float(np.percentile(along, 95))
     if far - near >= MAX_THICKNESS_RATIO * z_top:

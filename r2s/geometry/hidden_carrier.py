@@ -100,11 +100,8 @@ def hidden_tops(points_world: dict[int, np.ndarray], plane_point: np.ndarray,
     eye = transform_points(plane_from_world, np.asarray(eye_world, dtype=np.float64)[None])[0]
     local = {}
     for i, p in points_world.items():
-        q = transform_points(plane_from_world, np.asarray(p, dtype=np.float64).reshape(-1, 3))
-        q = q[q[:, 2] > TABLE_BAND_M]
-        if len(q) > 20:
-            q = q[drop_isolated(q)]  # flying pixels would stretch a footprint
-        if len(q) >= MIN_POINTS:
+        q = points_above_table(p, plane_from_world)
+        if q is not None:
             local[i] = q
     out: dict[int, HiddenTop] = {}
     for a, pa in local.items():
@@ -122,6 +119,32 @@ def hidden_tops(points_world: dict[int, np.ndarray], plane_point: np.ndarray,
     return out
 
 
+def points_above_table(points_world: np.ndarray, plane_from_world: np.ndarray
+                       ) -> np.ndarray | None:
+    """(N, 3) ``points_world`` in the support plane's frame (``plane_from_world`` (4, 4)),
+    without those in the table band and the isolated ones (flying pixels would stretch a
+    footprint); None when fewer than ``MIN_POINTS`` are left."""
+    q = transform_points(plane_from_world,
+                         np.asarray(points_world, dtype=np.float64).reshape(-1, 3))
+    q = q[q[:, 2] > TABLE_BAND_M]
+    if len(q) > 20:
+        q = q[drop_isolated(q)]
+    return q if len(q) >= MIN_POINTS else None
+
+
+def view_axes(points_plane: np.ndarray, eye_plane: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(along, across) unit (2,) directions in the table's plane: from the camera centre
+    ``eye_plane`` (3,) towards the mean of ``points_plane`` (N, 3), and across it; None
+    when the camera is straight above them (every top is seen)."""
+    along_dir = points_plane[:, :2].mean(axis=0) - eye_plane[:2]
+    norm = float(np.linalg.norm(along_dir))
+    if norm < 1e-6:
+        return None
+    along_dir = along_dir / norm
+    return along_dir, np.array([-along_dir[1], along_dir[0]])
+
+
 def _hidden_top(pa: np.ndarray, pb: np.ndarray, eye: np.ndarray, cell_m: float
                 ) -> tuple[float, np.ndarray] | None:
     """(height m, (M, 3) plane-frame points) of carrier ``pa``'s hidden top under
@@ -135,12 +158,10 @@ def _hidden_top(pa: np.ndarray, pb: np.ndarray, eye: np.ndarray, cell_m: float
     b_low = float(np.percentile(pb[:, 2], 5))
     if b_low < z_top - ABOVE_TOLERANCE_M:
         return None
-    along_dir = pa[:, :2].mean(axis=0) - eye[:2]
-    norm = float(np.linalg.norm(along_dir))
-    if norm < 1e-6:
-        return None  # the camera straight above: every top is seen
-    along_dir /= norm
-    across_dir = np.array([-along_dir[1], along_dir[0]])
+    axes = view_axes(pa, eye)
+    if axes is None:
+        return None
+    along_dir, across_dir = axes
     along_a, across_a = pa[:, :2] @ along_dir, pa[:, :2] @ across_dir
     face_far = float(np.percentile(along_a, 95))
     if face_far - float(np.percentile(along_a, 5)) > MAX_THICKNESS_RATIO * z_top:
