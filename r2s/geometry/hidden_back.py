@@ -12,7 +12,8 @@ the points of a *hidden back*: at the face's top height, over the strip behind t
 that runs away from the camera as far as the face is wide across the view (or as thick as
 it was seen, if that is more). Completed with them, the object becomes a box as deep as it
 is wide; the carving against the depth image still removes whatever of it the camera saw
-past (the table behind it), and the hidden space other objects own stays theirs. It is an
+past (the table behind it). It is made from the object's own view alone (the hidden space
+other objects were given is not kept out; physopt cuts what overlaps), and it is an
 alternative shape only (init keeps it in ``init/alternates/``): physopt swaps it in where
 the first shape cannot rest near where it was seen, and keeps it only where the scene then
 looks no worse (r2s/physopt/swap_choice.py).

@@ -64,7 +64,7 @@ from r2s.geometry.border_extension import border_cap_points
 from r2s.geometry.completion import (NO_BRIDGE, RELAXED_BRIDGE, STRICT_BRIDGE, BridgeGuards,
                                       CompletedShape, complete_from_points)
 from r2s.geometry.hidden_back import MIN_DEEPER_M, hidden_back
-from r2s.geometry.hidden_carrier import HiddenTop, hidden_tops
+from r2s.geometry.hidden_carrier import HiddenTop, hidden_tops, view_axes
 from r2s.geometry.hidden_support import support_extension
 from r2s.geometry.hidden_overlap import lift_onto_plane, sunk_too_far, yield_hidden_overlaps
 from r2s.geometry.hidden_partition import Claimant, exclusion, overlaps
@@ -80,7 +80,7 @@ from r2s.geometry.prior_choice import (ChoiceMargins, Rest, choose, score_in_vie
 from r2s.geometry.prior_refine import RefinedPose, RefineOptions, refine_axis_scale
 from r2s.geometry.prior_silhouette import SilhouetteFitOptions, fit_priors_to_view
 from r2s.geometry.plane import FLOATING_M, PlaneFit, fit_support_plane, signed_distance, \
-    standing_gap_m
+    standing_gap_m, world_from_plane
 from r2s.geometry.registration import (IcpOptions, RegistrationResult, register_prior,
                                        surface_fit, voxel_downsample)
 from r2s.geometry.unsegmented import MIN_HEIGHT_M as UNSEGMENTED_MIN_HEIGHT_M
@@ -1093,12 +1093,13 @@ def _deepened_alternates(scene: InputScene, observed: dict, shapes: dict[int, tu
 def _view_depth_m(mesh: trimesh.Trimesh, world_from_object: np.ndarray, plane: PlaneFit,
                   eye_world: np.ndarray) -> float:
     """Extent of the posed ``mesh`` along the horizontal direction from the camera centre
-    ``eye_world`` (3,) to its centroid (metres)."""
-    verts = transform_points(world_from_object, mesh.vertices)
-    normal = plane.normal / np.linalg.norm(plane.normal)
-    flat = verts - np.outer(verts @ normal, normal)
-    direction = flat.mean(axis=0) - (eye_world - (eye_world @ normal) * normal)
-    along = flat @ (direction / max(float(np.linalg.norm(direction)), 1e-9))
+    ``eye_world`` (3,) to its vertices' mean (metres; 0 with the camera straight above)."""
+    plane_from_world = np.linalg.inv(world_from_plane(plane.point, plane.normal))
+    verts = transform_points(plane_from_world @ world_from_object, mesh.vertices)
+    axes = view_axes(verts, transform_points(plane_from_world, eye_world[None])[0])
+    if axes is None:
+        return 0.0
+    along = verts[:, :2] @ axes[0]
     return float(along.max() - along.min())
 
 
