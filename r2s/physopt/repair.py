@@ -10,7 +10,8 @@ state is kept (:func:`score`).
 
 Repairs are bounded by the observation (:class:`r2s.physopt.observation_bound.ObservationBound`),
 in tiers of least observation change (:func:`verify_and_repair`): the COM and friction
-repairs, which change nothing the camera sees, are checked before any settling; settling
+repairs, which change nothing the camera sees, are checked before any settling (and
+undone for an object they make fall); settling
 and the damped rest may not carry an object beyond ``repair_tolerance_m`` / ``_deg`` from
 where it was seen, then (objects still moving) beyond the flagging tolerance; the
 unbounded repairs run only when an object still drifts at least ``fallback_severity`` of
@@ -250,6 +251,46 @@ def mass_and_friction_repair(make_world: MakeWorld, params: Params, movers: list
     return params
 
 
+def _unseen_repair_checked(make_world: MakeWorld, params: Params, movers: list[int],
+                           result: Drift, orders: list[list[int]], rnd_name: tuple,
+                           settings: RepairSettings, log: dict, kept_back: set[int]
+                           ) -> tuple[Params, Drift]:
+    """The movers' COM and friction repair (:func:`mass_and_friction_repair`; not for the
+    ids in ``kept_back``), checked and logged as round ``rnd_name`` (number, label).
+
+    With ``settings.undo_falling_repairs``, a mover that the repair makes fall (its drift
+    reaches the judge's ``judge_translation_m``, which it did not before: ``result``) gets
+    its COM and friction back and joins ``kept_back`` (updated in place): the repair pushed
+    the wrong way, as a COM moved towards contacts that tip the object over. The scene is
+    then checked again. Returns the parameters and their check.
+    """
+    rnd, name = rnd_name
+    repaired = mass_and_friction_repair(make_world, params, [i for i in movers
+                                                              if i not in kept_back],
+                                        result, rnd, settings, log)
+    new = check(make_world, repaired, orders, settings.verify_duration_s)
+    log["rounds"].append({"round": name, "action": "COM+friction", "bounded": True,
+                          "moving": settings.moving(new), "drift": _drift_log(new)})
+    if not settings.undo_falling_repairs:
+        return repaired, new
+    fall = settings.judge_translation_m
+    worse = [i for i in movers if not _same(params[i], repaired[i])
+             and result[i][0] < fall <= new[i][0]]
+    if not worse:
+        return repaired, new
+    for i in worse:
+        kept_back.add(i)
+        log["objects"][i].append(f"round {rnd}: COM and friction repair undone (it made "
+                                 f"the object fall: moved {1000 * result[i][0]:.0f} -> "
+                                 f"{1000 * new[i][0]:.0f} mm in the check)")
+    repaired = {**repaired, **{i: params[i] for i in worse}}
+    new = check(make_world, repaired, orders, settings.verify_duration_s)
+    log["rounds"].append({"round": name, "action": f"COM+friction undone for {worse}",
+                          "bounded": True, "moving": settings.moving(new),
+                          "drift": _drift_log(new)})
+    return repaired, new
+
+
 def settle_round(make_world: MakeWorld, params: Params, order: list[int], rnd: int,
                  settings: RepairSettings, log: dict,
                  bound: Optional[ObservationBound] = None,
@@ -385,6 +426,7 @@ def _repair_phase(make_world: MakeWorld, best: Kept, order: list[int],
     """The rounds, then the damped rest, from the state ``best`` (its params and check);
     settling and rest bounded by ``bound`` when given. Returns the best state seen."""
     params, result = best[1], best[2]
+    kept_back: set[int] = set()  # movers whose COM and friction repair was undone
     rnd = 0
     while rnd < settings.max_rounds:
         rnd += 1
@@ -403,12 +445,9 @@ def _repair_phase(make_world: MakeWorld, best: Kept, order: list[int],
         else:
             # least observation change first: COM and friction, checked before any settling,
             # which then moves only what still moves
-            params = mass_and_friction_repair(make_world, params, movers, result, rnd,
-                                              settings, log)
-            result = check(make_world, params, orders, settings.verify_duration_s)
-            log["rounds"].append({"round": name, "action": "COM+friction", "bounded": True,
-                                  "moving": settings.moving(result),
-                                  "drift": _drift_log(result)})
+            params, result = _unseen_repair_checked(make_world, params, movers, result,
+                                                    orders, (rnd, name), settings, log,
+                                                    kept_back)
             if rank(result, params) < best[0]:
                 best = (rank(result, params), params, result, name)
             if not settings.moving(result):

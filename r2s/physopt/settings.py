@@ -35,6 +35,11 @@ class RepairSettings(BaseModel):
     max_com_step_m: float = Field(0.01, gt=0, description="Largest COM move per round.")
     com_repair: bool = Field(True, description="In verification rounds, move a mover's COM "
                                                "over its support and down (see r2s.physopt.repair.com_repair).")
+    undo_falling_repairs: bool = Field(
+        True, description="In the observation-bounded rounds, undo a mover's COM and friction "
+                          "repair when it makes the object fall: its check drift reaches "
+                          "judge_translation_m, which it did not before (see "
+                          "r2s.physopt.repair).")
     max_settle_shift_m: float = Field(
         0.03, gt=0, description="In early rounds, a settled object that moved further is kept "
                                 "at its pose (its neighbours may still settle).")
