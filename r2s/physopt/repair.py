@@ -11,11 +11,11 @@ state is kept (:func:`score`).
 Repairs are bounded by the observation (:class:`r2s.physopt.observation_bound.ObservationBound`),
 in tiers of least observation change (:func:`verify_and_repair`): the COM and friction
 repairs, which change nothing the camera sees, are checked before any settling (and
-undone for an object they make fall); settling
-and the damped rest may not carry an object beyond ``repair_tolerance_m`` / ``_deg`` from
-where it was seen, then (objects still moving) beyond the flagging tolerance; the
-unbounded repairs run only when an object still drifts at least ``fallback_severity`` of
-the judge's criterion (what they move far is flagged by the stage).
+undone for an object they make fall); settling and the damped rest may not carry an
+object beyond ``repair_tolerance_m`` / ``_deg`` from where it was seen, then (objects
+still moving) beyond the flagging tolerance; the unbounded repairs run only when an
+object still drifts at least ``fallback_severity`` of the judge's criterion (what they
+move far is flagged by the stage).
 """
 
 from __future__ import annotations
