@@ -76,6 +76,11 @@ class RepairSettings(BaseModel):
                                "lowest point, projected down to it (r2s/physopt/"
                                "contact_foot.py; the visual mesh is untouched; 0: off, the "
                                "default: measured, no gain; docs/physopt.md).")
+    support_props: bool = Field(
+        True, description="An object that falls off another in the first check gives that "
+                          "other a hidden convex prop under it, where the camera did not "
+                          "see (r2s/physopt/support_prop.py; the visual meshes are "
+                          "untouched).")
     pull_back: bool = Field(
         True, description="Once the repaired scene rests, put the poses the solve changed "
                           "after depenetration back towards its start (all, all but what "

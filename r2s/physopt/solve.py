@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
@@ -20,6 +21,7 @@ from r2s.physopt.object_opt import optimise_objects
 from r2s.physopt.observation_bound import ObservationBound, displacement_flags
 from r2s.physopt.params import Drift, Params
 from r2s.physopt.pull_back import pull_back
+from r2s.physopt.support_prop import FALL_DEG, Hidden, with_prop
 from r2s.physopt.repair import (check, depenetrate_scene, judge_orders, verify_and_repair,
                                 world_factory)
 from r2s.physical.provenance import com_provenance, friction_provenance
@@ -40,11 +42,15 @@ class Solved:
 
 def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
                 order: list[int], seen: dict[int, np.ndarray], opt, log: dict,
-                progress: ProgressFn) -> Solved:
+                progress: ProgressFn, parents: Optional[dict] = None,
+                hidden: Optional[Hidden] = None) -> Solved:
     """Run the physopt pass (its last step puts poses back towards where the solve started,
     depenetrated, where the scene still rests: :mod:`r2s.physopt.pull_back`); ``opt`` holds
     the repair, diffsim and observation settings;
-    ``log`` (physopt/log.json's record) is extended in place."""
+    ``log`` (physopt/log.json's record) is extended in place. ``parents``: id -> the id
+    of the object it rests on (0: the table), from the contact graph; ``hidden``: which
+    world points the camera did not see past (:func:`r2s.physopt.support_prop.depth_hidden`);
+    both feed the support props (:func:`give_props`), which need ``parents``."""
     make_world = world_factory(pieces, state, order, opt)
     progress("depenetration", 0.1)
     params = depenetrate_scene(make_world, params, order, log)
@@ -58,6 +64,9 @@ def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
             if opt.diffsim_guard else stepped)
     if opt.foot_height_m > 0:
         give_feet(make_world, pieces, params, [o.id for o in state.objects], state, opt, log)
+    if opt.support_props and parents:
+        give_props(make_world, pieces, params, [o.id for o in state.objects], parents,
+                   state, opt, log, hidden)
     centres = {i: m.centroid for i, m in meshes.items()}
     bound = ObservationBound(seen, centres, opt.observation_tolerance_m,
                              opt.observation_tolerance_deg) if opt.observation_bound else None
@@ -98,6 +107,34 @@ def give_feet(make_world, pieces: dict, params: Params, export_order: list[int],
     if feet:
         make_world.checked.clear()  # the rollouts remembered were of the footless pieces
     log["feet"] = feet
+
+
+def give_props(make_world, pieces: dict, params: Params, export_order: list[int],
+               parents: dict, state: SceneState, opt, log: dict,
+               hidden: Optional[Hidden]) -> None:
+    """Each object that falls off another in a first check (moves the judge's translation,
+    or turns ``FALL_DEG``) gives its parent a hidden prop under it
+    (:mod:`r2s.physopt.support_prop`), in ``pieces`` in place (the checks, and export, use
+    them); ``log["support_props"]``: child id -> {"parent", "area_mm2"}."""
+    orders = judge_orders(export_order)
+    drifts = check(make_world, params, orders, opt.verify_duration_s)
+    up = -np.asarray(state.gravity, dtype=float)
+    props = {}
+    for i, (moved_m, turned_deg) in sorted(drifts.items()):
+        parent = parents.get(i, 0)
+        if (not params[i].movable or parent not in pieces
+                or (moved_m < opt.judge_translation_m and turned_deg < FALL_DEG)):
+            continue
+        propped, area = with_prop(pieces[i], params[i].world_from_object, pieces[parent],
+                                  params[parent].world_from_object, up, hidden)
+        if area > 0:
+            pieces[parent] = propped
+            props[str(i)] = {"parent": parent, "area_mm2": round(area * 1e6, 1)}
+            log["objects"][parent].append(
+                f"hidden prop of {area * 1e6:.0f} mm^2 under object {i}, which fell off it")
+    if props:
+        make_world.checked.clear()  # the rollouts remembered were of the pieces before
+    log["support_props"] = props
 
 
 def repair_bounded_then_free(make_world, params: Params, order: list[int],

@@ -11,6 +11,7 @@ The algorithm lives in :mod:`r2s.physopt`; this module reads, calls it and write
 
 from __future__ import annotations
 
+import copy
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,10 +39,11 @@ from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, SEEN_POSE_KEY, s
 from r2s.physopt.params import initial_params, keep_previous
 from r2s.physopt.piece_overlap import OverlapShave, shave_overlaps
 from r2s.physopt.solve import Solved, physopt_provenance, solve_scene
-from r2s.physopt.swap_choice import (MOVED_DEG, MOVED_M, SolutionSummary, prefer_swapped,
-                                    swap_candidates)
+from r2s.physopt.swap_choice import (MOVED_DEG, MOVED_M, SolutionSummary, prefer_propped,
+                                    prefer_swapped, swap_candidates)
 from r2s.metrics.observation import render_objects, silhouette_iou
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
+from r2s.physopt.support_prop import depth_hidden
 from r2s.physical.provenance import user_entries
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.scene_model import corrected_input, corrected_state
@@ -154,12 +156,15 @@ def run(ctx: StageContext) -> dict:
         log["only"] = {"object": opt.only, "rerun": sorted(rerun)}
 
     seen = seen_poses(paths, state, ctx.manifest.model)
-    solved = solve_scene(params, pieces.pieces, meshes, state, order, seen, opt, log,
-                         ctx.progress)
+    view = _view(ctx)
+    hidden = (depth_hidden(view.depth_m, view.camera.K, view.camera.world_from_camera)
+              if view is not None else None)
+    solved, log = _solve_props_checked(ctx, params, pieces.pieces, meshes, state, order, seen,
+                                       log, parents, hidden, view)
     mesh_files = {o.id: paths.stage_dir(src) / o.mesh for o in state.objects}
     if opt.swap_to_completion and opt.only is None:
         swapped = _solve_with_completions(ctx, src, state, meshes, parents, seen,
-                                          convex, solved, log)
+                                          convex, solved, log, hidden)
         if swapped is not None:
             state, pieces, solved, log, mesh_files = swapped
     params, final, flags = solved.params, solved.drift, solved.flags
@@ -173,6 +178,48 @@ def run(ctx: StageContext) -> dict:
             "flagged_objects": len(flags),
             "warnings": ([f"object {i}: {reason}" for i, reason in sorted(flags.items())]
                          + _not_at_rest(final, opt))}
+
+
+def _view(ctx: StageContext) -> Optional[InputScene]:
+    """The scene's input (with the effects in the scene's model); None without ``input/``."""
+    if not ctx.paths.input.is_dir():
+        return None
+    return corrected_input(load_input(ctx.paths.root), ctx.manifest.model)
+
+
+def _solve_props_checked(ctx: StageContext, params: dict, pieces: dict, meshes: dict,
+                         state: SceneState, order: list[int], seen: dict, log: dict,
+                         parents: dict, hidden, view: Optional[InputScene]
+                         ) -> tuple[Solved, dict]:
+    """:func:`solve_scene`, and where it gave hidden support props
+    (:mod:`r2s.physopt.support_prop`), the scene solved again without them from the same
+    start; the solution :func:`prefer_propped` prefers is returned with its log, and its
+    collision pieces are left in ``pieces`` (in place). The log records the choice
+    (``support_props_choice``)."""
+    opt = ctx.options
+    bare_pieces, bare_log = dict(pieces), copy.deepcopy(log)
+    solved = solve_scene(params, pieces, meshes, state, order, seen, opt, log, ctx.progress,
+                         parents, hidden)
+    if not log.get("support_props"):
+        return solved, log
+    ctx.progress("solving again without the hidden props", 0.6)
+    bare = solve_scene(params, bare_pieces, meshes, state, order, seen,
+                       opt.model_copy(update={"support_props": False}), bare_log,
+                       ctx.progress, parents, hidden)
+    summaries = [SolutionSummary(len(s.flags), len(opt.moving(s.drift)),
+                                 _pooled_iou(view, meshes, s.params)) for s in (bare, solved)]
+    keep = prefer_propped(*summaries)
+    record = {"props": log["support_props"], "kept": keep,
+              **{f"{k}_{name}": getattr(summary, k)
+                 for name, summary in zip(("without", "with"), summaries)
+                 for k in ("flagged", "moving", "pooled_iou")}}
+    if keep:
+        log["support_props_choice"] = record
+        return solved, log
+    bare_log["support_props_choice"] = record
+    pieces.clear()
+    pieces.update(bare_pieces)
+    return bare, bare_log
 
 
 def _not_at_rest(final: dict[int, tuple[float, float]], opt: Options) -> list[str]:
@@ -195,8 +242,8 @@ def _new_log(src: str, order: list[int], parents: dict, pieces: "_Pieces") -> di
 
 def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, meshes: dict,
                             parents: dict, seen: dict[int, np.ndarray],
-                            convex: ConvexParams, solved: Solved, log: dict
-                            ) -> Optional[tuple]:
+                            convex: ConvexParams, solved: Solved, log: dict,
+                            hidden=None) -> Optional[tuple]:
     """Solve again with init's alternative shape (``init/alternates/``) in place of every
     object :func:`r2s.physopt.swap_choice.swap_candidates` names (flagged, or a prior moved
     or turned visibly) that has one: a prior's completion, or a completed object's second
@@ -240,10 +287,9 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
                              opt.mass_bounds, opt.friction_init, user_entries(paths.root))
     seen2 = {**seen, **{i: o.pose for i, o in swap.items()}}
     log2 = _new_log(src, order2, parents2, pieces2)
-    solved2 = solve_scene(params2, pieces2.pieces, meshes2, state2, order2, seen2, opt, log2,
-                          ctx.progress)
-    view = (corrected_input(load_input(paths.root), ctx.manifest.model)
-            if paths.input.is_dir() else None)
+    view = _view(ctx)
+    solved2, log2 = _solve_props_checked(ctx, params2, pieces2.pieces, meshes2, state2, order2,
+                                         seen2, log2, parents2, hidden, view)
     before = SolutionSummary(len(solved.flags), len(opt.moving(solved.drift)),
                              _pooled_iou(view, meshes, solved.params))
     after = SolutionSummary(len(solved2.flags), len(opt.moving(solved2.drift)),
