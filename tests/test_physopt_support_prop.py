@@ -154,3 +154,22 @@ def test_the_solution_with_props_is_kept_when_it_rests_better_or_looks_no_worse(
     assert not prefer_propped(without, SolutionSummary(1, 0, 0.79))
     assert not prefer_propped(without, SolutionSummary(2, 0, 0.95))
     assert prefer_propped(SolutionSummary(1, 0, None), SolutionSummary(1, 0, None))
+
+
+def test_props_are_tried_for_what_fell_off_another_and_was_left_flagged_or_moving():
+    from r2s.physopt.solve import Solved
+    from r2s.stages.physopt import Options, _fallen_and_left
+
+    # first check: 2 fell 60 mm off object 1, 3 turned 40 deg off the table, 4 turned
+    # 40 deg off object 1, 5 crept 3 mm on object 1
+    log = {"rounds": [{"drift": {"2": [0.06, 10.0], "3": [0.001, 40.0], "4": [0.001, 40.0],
+                                 "5": [0.003, 1.0]}}]}
+    parents = {2: 1, 3: 0, 4: 1, 5: 1}
+    opt = Options()
+    solved = Solved(params={}, drift={2: (0.0, 0.0), 3: (0.0, 0.0), 4: (0.02, 9.0),
+                                      5: (0.0, 0.0)},
+                    flags={2: "moved", 3: "moved", 5: "moved"}, displacement={})
+    assert _fallen_and_left(log, parents, solved, opt) == [2, 4]  # 3: the table; 5: no fall
+    rested = Solved(params={}, drift={i: (0.0, 0.0) for i in parents}, flags={},
+                    displacement={})
+    assert _fallen_and_left(log, parents, rested, opt) == []

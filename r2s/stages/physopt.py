@@ -43,7 +43,7 @@ from r2s.physopt.swap_choice import (MOVED_DEG, MOVED_M, SolutionSummary, prefer
                                     prefer_swapped, swap_candidates)
 from r2s.metrics.observation import render_objects, silhouette_iou
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
-from r2s.physopt.support_prop import depth_hidden
+from r2s.physopt.support_prop import FALL_DEG, depth_hidden
 from r2s.physical.provenance import user_entries
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.scene_model import corrected_input, corrected_state
@@ -191,36 +191,49 @@ def _solve_props_checked(ctx: StageContext, params: dict, pieces: dict, meshes: 
                          state: SceneState, order: list[int], seen: dict, log: dict,
                          parents: dict, hidden, view: Optional[InputScene]
                          ) -> tuple[Solved, dict]:
-    """:func:`solve_scene`, and where it gave hidden support props
-    (:mod:`r2s.physopt.support_prop`), the scene solved again without them from the same
-    start; the solution :func:`prefer_propped` prefers is returned with its log, and its
-    collision pieces are left in ``pieces`` (in place). The log records the choice
-    (``support_props_choice``)."""
+    """:func:`solve_scene` without the hidden support props; where that leaves an object
+    that fell off another in the first check flagged or still moving
+    (:func:`_fallen_and_left`), the scene solved again with them
+    (:mod:`r2s.physopt.support_prop`) from the same start, and of the two the solution
+    :func:`prefer_propped` prefers, returned with its log; its collision pieces are left in
+    ``pieces`` (in place). The log records the choice (``support_props_choice``)."""
     opt = ctx.options
-    bare_pieces, bare_log = dict(pieces), copy.deepcopy(log)
-    solved = solve_scene(params, pieces, meshes, state, order, seen, opt, log, ctx.progress,
+    propped_pieces, propped_log = dict(pieces), copy.deepcopy(log)
+    solved = solve_scene(params, pieces, meshes, state, order, seen,
+                         opt.model_copy(update={"support_props": False}), log, ctx.progress,
                          parents, hidden)
-    if not log.get("support_props"):
+    if not opt.support_props or not _fallen_and_left(log, parents or {}, solved, opt):
         return solved, log
-    ctx.progress("solving again without the hidden props", 0.6)
-    bare = solve_scene(params, bare_pieces, meshes, state, order, seen,
-                       opt.model_copy(update={"support_props": False}), bare_log,
-                       ctx.progress, parents, hidden)
+    ctx.progress("solving again with hidden props under what fell", 0.6)
+    propped = solve_scene(params, propped_pieces, meshes, state, order, seen, opt,
+                          propped_log, ctx.progress, parents, hidden)
+    if not propped_log.get("support_props"):
+        return solved, log
     summaries = [SolutionSummary(len(s.flags), len(opt.moving(s.drift)),
-                                 _pooled_iou(view, meshes, s.params)) for s in (bare, solved)]
+                                 _pooled_iou(view, meshes, s.params)) for s in (solved, propped)]
     keep = prefer_propped(*summaries)
-    record = {"props": log["support_props"], "kept": keep,
+    record = {"props": propped_log["support_props"], "kept": keep,
               **{f"{k}_{name}": getattr(summary, k)
                  for name, summary in zip(("without", "with"), summaries)
                  for k in ("flagged", "moving", "pooled_iou")}}
-    if keep:
+    if not keep:
         log["support_props_choice"] = record
         return solved, log
-    bare_log["support_props_choice"] = record
+    propped_log["support_props_choice"] = record
     pieces.clear()
-    pieces.update(bare_pieces)
-    return bare, bare_log
+    pieces.update(propped_pieces)
+    return propped, propped_log
 
+
+def _fallen_and_left(log: dict, parents: dict, solved: Solved, opt: Options) -> list[int]:
+    """The objects resting on another object that fell in the solve's first check (moved
+    the judge's translation or turned ``FALL_DEG``; ``log["rounds"][0]``) and end it
+    flagged or still moving: what a hidden prop under them may hold where seen."""
+    first = log["rounds"][0]["drift"] if log.get("rounds") else {}
+    left = set(solved.flags) | set(opt.moving(solved.drift))
+    return sorted(i for i in left if parents.get(i, 0) != 0 and str(i) in first
+                  and (first[str(i)][0] >= opt.judge_translation_m
+                       or first[str(i)][1] >= FALL_DEG))
 
 def _not_at_rest(final: dict[int, tuple[float, float]], opt: Options) -> list[str]:
     """One line per object that still fails the judge's criterion in physopt's last check
