@@ -77,10 +77,11 @@ class RepairSettings(BaseModel):
                                "contact_foot.py; the visual mesh is untouched; 0: off, the "
                                "default: measured, no gain; docs/physopt.md).")
     support_props: bool = Field(
-        True, description="An object that falls off another in the first check gives that "
-                          "other a hidden convex prop under it, where the camera did not "
-                          "see (r2s/physopt/support_prop.py; the visual meshes are "
-                          "untouched).")
+        True, description="Where the solve leaves an object that fell off another in its "
+                          "first check flagged or moving, solve the scene again with a "
+                          "hidden convex prop on that other under it, where the camera did "
+                          "not see, and keep the better solution (r2s/physopt/"
+                          "support_prop.py; the visual meshes are untouched).")
     pull_back: bool = Field(
         True, description="Once the repaired scene rests, put the poses the solve changed "
                           "after depenetration back towards its start (all, all but what "
