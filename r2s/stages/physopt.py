@@ -318,6 +318,8 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
               "moving_after": sorted(opt.moving(solved2.drift)),
               "pooled_iou_before": before.pooled_iou,
               "pooled_iou_after": after.pooled_iou, "refit": refit, "kept": keep}
+    if "support_props_choice" in log:  # the first solve's, which a kept swap's log drops
+        record["first_solve_support_props_choice"] = log["support_props_choice"]
     if not keep:
         log["swap_to_completion"] = record
         return None
