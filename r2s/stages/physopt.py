@@ -235,6 +235,7 @@ def _fallen_and_left(log: dict, parents: dict, solved: Solved, opt: Options) -> 
                   and (first[str(i)][0] >= opt.judge_translation_m
                        or first[str(i)][1] >= FALL_DEG))
 
+
 def _not_at_rest(final: dict[int, tuple[float, float]], opt: Options) -> list[str]:
     """One line per object that still fails the judge's criterion in physopt's last check
     (``final``: id -> (COM translation m, rotation deg) over the check): the scene does not
