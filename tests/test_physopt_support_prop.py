@@ -173,3 +173,13 @@ def test_props_are_tried_for_what_fell_off_another_and_was_left_flagged_or_movin
     rested = Solved(params={}, drift={i: (0.0, 0.0) for i in parents}, flags={},
                     displacement={})
     assert _fallen_and_left(log, parents, rested, opt) == []
+
+
+def test_props_that_carry_objects_farther_from_their_points_are_turned_down():
+    from r2s.physopt.swap_choice import UCD_GROWTH, SolutionSummary, prefer_propped
+
+    without = SolutionSummary(flagged=2, moving=0, pooled_iou=0.52, ucd_mm=20.0)
+    # the measured case (fresh7 scene_03): more IoU, UCD 20 -> 34 mm
+    assert not prefer_propped(without, SolutionSummary(2, 0, 0.56, 34.0))
+    assert prefer_propped(without, SolutionSummary(2, 0, 0.56, 20.0 * UCD_GROWTH))
+    assert prefer_propped(without, SolutionSummary(1, 0, 0.56, 34.0))  # fewer flagged first

@@ -41,7 +41,8 @@ from r2s.physopt.piece_overlap import OverlapShave, shave_overlaps
 from r2s.physopt.solve import Solved, physopt_provenance, solve_scene
 from r2s.physopt.swap_choice import (MOVED_DEG, MOVED_M, SolutionSummary, prefer_propped,
                                     prefer_swapped, swap_candidates)
-from r2s.metrics.observation import render_objects, silhouette_iou
+from r2s.geometry.camera import backproject
+from r2s.metrics.observation import render_objects, silhouette_iou, unilateral_chamfer_m
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
 from r2s.physopt.support_prop import FALL_DEG, depth_hidden
 from r2s.physical.provenance import user_entries
@@ -210,12 +211,13 @@ def _solve_props_checked(ctx: StageContext, params: dict, pieces: dict, meshes: 
     if not propped_log.get("support_props"):
         return solved, log
     summaries = [SolutionSummary(len(s.flags), len(opt.moving(s.drift)),
-                                 _pooled_iou(view, meshes, s.params)) for s in (solved, propped)]
+                                 _pooled_iou(view, meshes, s.params),
+                                 _mean_ucd_mm(view, meshes, s.params)) for s in (solved, propped)]
     keep = prefer_propped(*summaries)
     record = {"props": propped_log["support_props"], "kept": keep,
               **{f"{k}_{name}": getattr(summary, k)
                  for name, summary in zip(("without", "with"), summaries)
-                 for k in ("flagged", "moving", "pooled_iou")}}
+                 for k in ("flagged", "moving", "pooled_iou", "ucd_mm")}}
     if not keep:
         log["support_props_choice"] = record
         return solved, log
@@ -345,6 +347,29 @@ def _second_completion(o: ObjectState) -> bool:
     r2s/stages/init.py ``_partition_hidden``; reaching the table where the first stands on
     others, ``_table_alternates``), a kept prior's completion carries none."""
     return getattr(o, "alternate", None) is not None
+
+
+UCD_POINTS = 2000
+"""Observed points per object for :func:`_mean_ucd_mm` (drawn with a fixed seed)."""
+
+
+def _mean_ucd_mm(view: Optional[InputScene], meshes: dict, params: dict) -> Optional[float]:
+    """Mean over the objects of the mean distance (mm) from the object's observed points
+    (its mask's valid depth, at most ``UCD_POINTS``) to its mesh at its solved pose,
+    rounded to 2 digits; None without a view or without points."""
+    if view is None:
+        return None
+    rng = np.random.default_rng(0)
+    cam, ucds = view.camera, []
+    for i in sorted(params):
+        points = backproject(view.depth_m, cam.K, cam.world_from_camera, view.masks == i)
+        if len(points) > UCD_POINTS:
+            points = points[rng.choice(len(points), size=UCD_POINTS, replace=False)]
+        ucd = unilateral_chamfer_m(
+            points, meshes[i].copy().apply_transform(params[i].world_from_object))
+        if ucd is not None:
+            ucds.append(ucd)
+    return round(1000 * float(np.mean(ucds)), 2) if ucds else None
 
 
 def _pooled_iou(view: Optional[InputScene], meshes: dict, params: dict) -> Optional[float]:
