@@ -21,7 +21,7 @@ from r2s.physopt.object_opt import optimise_objects
 from r2s.physopt.observation_bound import ObservationBound, displacement_flags
 from r2s.physopt.params import Drift, Params
 from r2s.physopt.pull_back import pull_back
-from r2s.physopt.support_prop import FALL_DEG, Hidden, with_prop
+from r2s.physopt.support_prop import Hidden, fell, with_prop
 from r2s.physopt.repair import (check, depenetrate_scene, judge_orders, verify_and_repair,
                                 world_factory)
 from r2s.physical.provenance import com_provenance, friction_provenance
@@ -120,10 +120,10 @@ def give_props(make_world, pieces: dict, params: Params, export_order: list[int]
     drifts = check(make_world, params, orders, opt.verify_duration_s)
     up = -np.asarray(state.gravity, dtype=float)
     props = {}
-    for i, (moved_m, turned_deg) in sorted(drifts.items()):
+    for i, moved in sorted(drifts.items()):
         parent = parents.get(i, 0)
         if (not params[i].movable or parent not in pieces
-                or (moved_m < opt.judge_translation_m and turned_deg < FALL_DEG)):
+                or not fell(moved, opt.judge_translation_m)):
             continue
         propped, area = with_prop(pieces[i], params[i].world_from_object, pieces[parent],
                                   params[parent].world_from_object, up, hidden)

@@ -49,6 +49,14 @@ point over the parent (fixed seed: the same pieces give the same prop)."""
 FALL_DEG = 30.0
 """A child falls in a check when it turns this much (or moves the judge's translation)."""
 
+
+
+def fell(drift: tuple[float, float], judge_translation_m: float) -> bool:
+    """Whether a check's ``drift`` (COM translation m, rotation deg) is a fall: the judge's
+    translation, or ``FALL_DEG``."""
+    return drift[0] >= judge_translation_m or drift[1] >= FALL_DEG
+
+
 Hidden = Callable[[np.ndarray], np.ndarray]
 """``hidden(points_world)`` (N, 3) -> (N,) bool: the camera did not see past the point."""
 

@@ -41,10 +41,9 @@ from r2s.physopt.piece_overlap import OverlapShave, shave_overlaps
 from r2s.physopt.solve import Solved, physopt_provenance, solve_scene
 from r2s.physopt.swap_choice import (MOVED_DEG, MOVED_M, SolutionSummary, prefer_propped,
                                     prefer_swapped, swap_candidates)
-from r2s.geometry.camera import backproject
-from r2s.metrics.observation import render_objects, silhouette_iou, unilateral_chamfer_m
+from r2s.metrics.observation import observe_scene, render_objects, silhouette_iou
 from r2s.physopt.settings import DiffsimSettings, RepairSettings
-from r2s.physopt.support_prop import FALL_DEG, depth_hidden
+from r2s.physopt.support_prop import depth_hidden, fell
 from r2s.physical.provenance import user_entries
 from r2s.runner.base import StageContext, StageOptions, StageSpec
 from r2s.scene_model import corrected_input, corrected_state
@@ -165,7 +164,7 @@ def run(ctx: StageContext) -> dict:
     mesh_files = {o.id: paths.stage_dir(src) / o.mesh for o in state.objects}
     if opt.swap_to_completion and opt.only is None:
         swapped = _solve_with_completions(ctx, src, state, meshes, parents, seen,
-                                          convex, solved, log, hidden)
+                                          convex, solved, log, view, hidden)
         if swapped is not None:
             state, pieces, solved, log, mesh_files = swapped
     params, final, flags = solved.params, solved.drift, solved.flags
@@ -210,9 +209,7 @@ def _solve_props_checked(ctx: StageContext, params: dict, pieces: dict, meshes: 
                           propped_log, ctx.progress, parents, hidden)
     if not propped_log.get("support_props"):
         return solved, log
-    summaries = [SolutionSummary(len(s.flags), len(opt.moving(s.drift)),
-                                 _pooled_iou(view, meshes, s.params),
-                                 _mean_ucd_mm(view, meshes, s.params)) for s in (solved, propped)]
+    summaries = [_observed_summary(view, meshes, s, opt) for s in (solved, propped)]
     keep = prefer_propped(*summaries)
     record = {"props": propped_log["support_props"], "kept": keep,
               **{f"{k}_{name}": getattr(summary, k)
@@ -228,14 +225,13 @@ def _solve_props_checked(ctx: StageContext, params: dict, pieces: dict, meshes: 
 
 
 def _fallen_and_left(log: dict, parents: dict, solved: Solved, opt: Options) -> list[int]:
-    """The objects resting on another object that fell in the solve's first check (moved
-    the judge's translation or turned ``FALL_DEG``; ``log["rounds"][0]``) and end it
-    flagged or still moving: what a hidden prop under them may hold where seen."""
+    """The objects resting on another object that fell in the solve's first check
+    (:func:`r2s.physopt.support_prop.fell`; ``log["rounds"][0]``) and end it flagged or
+    still moving: what a hidden prop under them may hold where seen."""
     first = log["rounds"][0]["drift"] if log.get("rounds") else {}
     left = set(solved.flags) | set(opt.moving(solved.drift))
     return sorted(i for i in left if parents.get(i, 0) != 0 and str(i) in first
-                  and (first[str(i)][0] >= opt.judge_translation_m
-                       or first[str(i)][1] >= FALL_DEG))
+                  and fell(first[str(i)], opt.judge_translation_m))
 
 
 def _not_at_rest(final: dict[int, tuple[float, float]], opt: Options) -> list[str]:
@@ -259,7 +255,8 @@ def _new_log(src: str, order: list[int], parents: dict, pieces: "_Pieces") -> di
 def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, meshes: dict,
                             parents: dict, seen: dict[int, np.ndarray],
                             convex: ConvexParams, solved: Solved, log: dict,
-                            hidden=None) -> Optional[tuple]:
+                            view: Optional[InputScene] = None, hidden=None
+                            ) -> Optional[tuple]:
     """Solve again with init's alternative shape (``init/alternates/``) in place of every
     object :func:`r2s.physopt.swap_choice.swap_candidates` names (flagged, or a prior moved
     or turned visibly) that has one: a prior's completion, or a completed object's second
@@ -271,7 +268,8 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
     records the attempt). A swapped object is seen where its completion was (its state
     carries :data:`SEEN_POSE_KEY`, which export measures the displacement from). The
     support tree and (when ``src`` is geomopt) geomopt's poses are made again for the new
-    shapes first (:mod:`r2s.stages.refit_poses`)."""
+    shapes first (:mod:`r2s.stages.refit_poses`). ``view``: the scene's input (None:
+    none), which scores both solutions; ``hidden``: for the second solve's props."""
     paths, opt = ctx.paths, ctx.options
     alt_dir = paths.stage_dir("init") / INIT_ALTERNATES_DIR
     if not (alt_dir / STATE_FILE).is_file():
@@ -303,7 +301,6 @@ def _solve_with_completions(ctx: StageContext, src: str, state: SceneState, mesh
                              opt.mass_bounds, opt.friction_init, user_entries(paths.root))
     seen2 = {**seen, **{i: o.pose for i, o in swap.items()}}
     log2 = _new_log(src, order2, parents2, pieces2)
-    view = _view(ctx)
     solved2, log2 = _solve_props_checked(ctx, params2, pieces2.pieces, meshes2, state2, order2,
                                          seen2, log2, parents2, hidden, view)
     before = SolutionSummary(len(solved.flags), len(opt.moving(solved.drift)),
@@ -349,27 +346,24 @@ def _second_completion(o: ObjectState) -> bool:
     return getattr(o, "alternate", None) is not None
 
 
-UCD_POINTS = 2000
-"""Observed points per object for :func:`_mean_ucd_mm` (drawn with a fixed seed)."""
-
-
-def _mean_ucd_mm(view: Optional[InputScene], meshes: dict, params: dict) -> Optional[float]:
-    """Mean over the objects of the mean distance (mm) from the object's observed points
-    (its mask's valid depth, at most ``UCD_POINTS``) to its mesh at its solved pose,
-    rounded to 2 digits; None without a view or without points."""
+def _observed_summary(view: Optional[InputScene], meshes: dict, solved: Solved,
+                      opt: Options) -> SolutionSummary:
+    """What :func:`prefer_propped` compares of a solution: objects flagged and still moving,
+    and against the view (:func:`r2s.metrics.observation.observe_scene`, as evaluate
+    measures it) the pooled silhouette IoU (4 digits) and the mean over the objects of
+    their UCD (mm, 2 digits); both None without a view."""
+    flagged, moving = len(solved.flags), len(opt.moving(solved.drift))
     if view is None:
-        return None
-    rng = np.random.default_rng(0)
-    cam, ucds = view.camera, []
-    for i in sorted(params):
-        points = backproject(view.depth_m, cam.K, cam.world_from_camera, view.masks == i)
-        if len(points) > UCD_POINTS:
-            points = points[rng.choice(len(points), size=UCD_POINTS, replace=False)]
-        ucd = unilateral_chamfer_m(
-            points, meshes[i].copy().apply_transform(params[i].world_from_object))
-        if ucd is not None:
-            ucds.append(ucd)
-    return round(1000 * float(np.mean(ucds)), 2) if ucds else None
+        return SolutionSummary(flagged, moving, None)
+    ids = sorted(solved.params)
+    cam = view.camera
+    seen = observe_scene([meshes[i].copy().apply_transform(solved.params[i].world_from_object)
+                          for i in ids], ids, cam.K, cam.world_from_camera, view.depth_m,
+                         view.masks)
+    ucds = [o.ucd_mm for o in seen.objects if o.ucd_mm is not None]
+    return SolutionSummary(flagged, moving,
+                           None if seen.pooled_iou is None else round(float(seen.pooled_iou), 4),
+                           round(float(np.mean(ucds)), 2) if ucds else None)
 
 
 def _pooled_iou(view: Optional[InputScene], meshes: dict, params: dict) -> Optional[float]:
