@@ -60,7 +60,8 @@ def test_scores_of_the_true_shape_and_of_a_box_too_long():
 def test_choose_needs_every_margin():
     prior = ViewScore(iou=0.70, ucd_mm=5.0, free_space=0.05)
     margins = ChoiceMargins(iou_gain=0.1, ucd_gain_mm=1.0, free_space_slack=0.02,
-                            large_iou_gain=1.0)  # the second rule off
+                            large_iou_gain=1.0, large_ucd_gain_mm=float("inf"))
+    # the rules for a far better silhouette or UCD off
     assert choose(prior, ViewScore(0.85, 2.0, 0.01), margins)[0] == "completion"
     assert choose(prior, ViewScore(0.79, 2.0, 0.01), margins)[0] == "prior"  # IoU gain 0.09
     assert choose(prior, ViewScore(0.85, 4.5, 0.01), margins)[0] == "prior"  # UCD gain 0.5
@@ -79,6 +80,22 @@ def test_a_far_better_silhouette_needs_no_ucd_margin():
     assert choose(prior, ViewScore(0.730, 1.38, 0.0), margins)[0] == "prior"   # IoU gain 0.095
     assert choose(prior, ViewScore(0.838, 1.38, 0.034), margins)[0] == "prior"  # free +0.021
     assert choose(prior, ViewScore(0.838, 1.38, 0.032), margins)[0] == "completion"
+
+
+def test_a_far_closer_surface_replaces_a_prior_of_about_the_same_silhouette():
+    """fresh9 scene_00's banana: the prior (scale at its bound, 18 mm into the table) has
+    silhouette IoU 0.639, UCD 5.72 mm, free space 0.001; the completion 0.627, 2.54 mm, 0.
+    The UCD gain (3.2 mm) clears the 1 mm margin but the IoU is lower; the completion's UCD
+    is under half the prior's, so it replaces the prior (CD against gt 9.8 -> 5.4 mm)."""
+    prior = ViewScore(iou=0.639, ucd_mm=5.72, free_space=0.001)
+    margins = ChoiceMargins()
+    assert choose(prior, ViewScore(0.627, 2.54, 0.0), margins)[0] == "completion"
+    assert choose(prior, ViewScore(0.627, 2.87, 0.0), margins)[0] == "prior"   # UCD 0.50x
+    assert choose(prior, ViewScore(0.585, 2.54, 0.0), margins)[0] == "prior"   # IoU -0.054
+    assert choose(prior, ViewScore(0.627, 2.54, 0.022), margins)[0] == "prior"  # free +0.021
+    # a small UCD: half of it is under the 2 mm gain
+    small = ViewScore(iou=0.8, ucd_mm=3.0, free_space=0.0)
+    assert choose(small, ViewScore(0.8, 1.2, 0.0), margins)[0] == "prior"
 
 
 @pytest.mark.slow

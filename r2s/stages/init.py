@@ -197,6 +197,11 @@ class Options(StageOptions):
                                                "completion whose silhouette IoU exceeds the "
                                                "prior's by at least this replaces it with any "
                                                "UCD gain (none lost) and the free-space slack.")
+    prior_choice_large_ucd_gain_mm: float = Field(2.0, ge=0, description="'auto': a "
+                                                  "completion whose UCD is at most half the "
+                                                  "prior's and lower by at least this (mm) "
+                                                  "replaces it when its IoU is at most 0.05 "
+                                                  "lower (geometry/prior_choice.py).")
     prior_choice_rest: bool = Field(True, description="'auto': also set the prior and the "
                                     "completion of an object standing alone on the table "
                                     "down there and roll each out for 1 s; a prior that "
@@ -594,7 +599,8 @@ def _choose_prior_or_completion(scene: InputScene, observed: dict, shapes: dict[
     margins = ChoiceMargins(iou_gain=o.prior_choice_iou_gain,
                             large_iou_gain=o.prior_choice_large_iou_gain,
                             ucd_gain_mm=o.prior_choice_ucd_gain_mm,
-                            free_space_slack=o.prior_choice_free_space_slack)
+                            free_space_slack=o.prior_choice_free_space_slack,
+                            large_ucd_gain_mm=o.prior_choice_large_ucd_gain_mm)
     def judge(i: int) -> tuple[Optional[tuple], dict, Optional[str]]:
         """(the completion or None, the record, a flag line or None) of prior ``i``."""
         others = [(j, m) for j, m in posed.items() if j != i]
