@@ -7,8 +7,8 @@ and the view has its own errors: a mask that bleeds onto the table or a shadow, 
 split into two ids, a sliver, depth noise. This script scores each scene's gt objects (the
 meshes of ``gt/scene.json`` at their poses) against the scene's ``input/`` with the same
 function evaluate calls, so a table of r2s's figures can be read beside what an exact
-reconstruction would get: where the ground truth scores an IoU of 0.86, a target of 0.93
-asks the twin to fit the masks' errors.
+reconstruction would get: where the ground truth scores an IoU under a target, meeting
+the target means fitting the masks' errors.
 
 Prints one row per scene and one pooled the way ``scripts/bench_realistic.py`` pools (IoU:
 the mean of the scenes' pooled IoUs; UCD, UCD above the table and free space: means over
@@ -37,6 +37,7 @@ from r2s.io.scene_json import read_gt_scene  # noqa: E402
 from r2s.io.state import read_state  # noqa: E402
 from r2s.metrics.observation import instance_ids, observe_scene  # noqa: E402
 from r2s.scene_model import corrected_input  # noqa: E402
+
 
 def gt_observation(scene: Path) -> dict:
     """evaluate's observation figures of ``scene``'s gt objects against its input view

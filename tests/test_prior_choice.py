@@ -93,7 +93,7 @@ def test_a_far_closer_surface_replaces_a_prior_of_about_the_same_silhouette():
     assert choose(prior, ViewScore(0.627, 2.87, 0.0), margins)[0] == "prior"   # UCD 0.50x
     assert choose(prior, ViewScore(0.585, 2.54, 0.0), margins)[0] == "prior"   # IoU -0.054
     assert choose(prior, ViewScore(0.627, 2.54, 0.022), margins)[0] == "prior"  # free +0.021
-    # a small UCD: half of it is under the 2 mm gain
+    # a small UCD: 0.4 times the prior's, but the gain (1.8 mm) is under 2 mm
     small = ViewScore(iou=0.8, ucd_mm=3.0, free_space=0.0)
     assert choose(small, ViewScore(0.8, 1.2, 0.0), margins)[0] == "prior"
 
