@@ -40,18 +40,23 @@ class Solved:
     displacement: dict[int, tuple[float, float]]
 
 
-def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
-                order: list[int], seen: dict[int, np.ndarray], opt, log: dict,
-                progress: ProgressFn, parents: Optional[dict] = None,
-                hidden: Optional[Hidden] = None) -> Solved:
-    """Run the physopt pass (its last step puts poses back towards where the solve started,
-    depenetrated, where the scene still rests: :mod:`r2s.physopt.pull_back`); ``opt`` holds
-    the repair, diffsim and observation settings;
-    ``log`` (physopt/log.json's record) is extended in place. ``parents``: id -> the id
-    of the object it rests on (0: the table), from the contact graph; ``hidden``: which
-    world points the camera did not see past (:func:`r2s.physopt.support_prop.depth_hidden`);
-    both feed the support props (:func:`give_props`), which need ``parents``."""
-    make_world = world_factory(pieces, state, order, opt)
+@dataclass(frozen=True)
+class Prepared:
+    """A scene ready for the repairs: ``params`` after depenetration and the diffsim step,
+    and ``start``, id -> world_from_object (4, 4) after depenetration, where
+    :func:`finish_scene`'s pull-back puts poses back towards."""
+
+    params: Params
+    start: dict[int, np.ndarray]
+
+
+def prepare_scene(make_world, pieces: dict, params: Params, meshes: dict, state: SceneState,
+                  order: list[int], opt, log: dict, progress: ProgressFn) -> Prepared:
+    """The physopt pass up to the repairs: depenetration, the differentiable-simulation step
+    (kept where it rests) and the contact feet (in ``pieces`` in place); ``make_world``:
+    :func:`r2s.physopt.repair.world_factory` of ``pieces``; ``log`` (physopt/log.json's
+    record) is extended in place. Deterministic, so two solves of one scene (with and
+    without support props) share it."""
     progress("depenetration", 0.1)
     params = depenetrate_scene(make_world, params, order, log)
     start = {i: p.world_from_object for i, p in params.items()}
@@ -64,18 +69,25 @@ def solve_scene(params: Params, pieces: dict, meshes: dict, state: SceneState,
             if opt.diffsim_guard else stepped)
     if opt.foot_height_m > 0:
         give_feet(make_world, pieces, params, [o.id for o in state.objects], state, opt, log)
-    if opt.support_props and parents:
-        give_props(make_world, pieces, params, [o.id for o in state.objects], parents,
-                   state, opt, log, hidden)
+    return Prepared(params, start)
+
+
+def finish_scene(make_world, prepared: Prepared, meshes: dict, state: SceneState,
+                 order: list[int], seen: dict[int, np.ndarray], opt, log: dict,
+                 progress: ProgressFn) -> Solved:
+    """The rest of the physopt pass from ``prepared`` (:func:`prepare_scene`): the repairs,
+    bounded by the observation then free, and the pull-back towards where the solve started,
+    depenetrated, where the scene still rests (:mod:`r2s.physopt.pull_back`); ``opt`` holds
+    the repair and observation settings; ``log`` is extended in place."""
     centres = {i: m.centroid for i, m in meshes.items()}
     bound = ObservationBound(seen, centres, opt.observation_tolerance_m,
                              opt.observation_tolerance_deg) if opt.observation_bound else None
-    params, drift = repair_bounded_then_free(make_world, params, order,
+    params, drift = repair_bounded_then_free(make_world, dict(prepared.params), order,
                                               [o.id for o in state.objects], opt, log,
                                               progress, bound)
     if opt.pull_back:
         progress("poses back towards where the solve started", 0.95)
-        params, drift = pull_back(make_world, params, drift, start, centres,
+        params, drift = pull_back(make_world, params, drift, prepared.start, centres,
                                   [o.id for o in state.objects], opt, log,
                                   seen=seen if opt.pull_back_to_seen else None,
                                   one_by_one=opt.pull_back_one_by_one)

@@ -38,7 +38,9 @@ from r2s.physopt.hierarchy import (descendants, lowest_points_m, order_root_to_l
 from r2s.physopt.observation_bound import OBSERVATION_FLAG_KEY, SEEN_POSE_KEY, seen_poses
 from r2s.physopt.params import initial_params, keep_previous
 from r2s.physopt.piece_overlap import OverlapShave, shave_overlaps
-from r2s.physopt.solve import Solved, physopt_provenance, solve_scene
+from r2s.physopt.repair import world_factory
+from r2s.physopt.solve import (Solved, finish_scene, give_props, physopt_provenance,
+                               prepare_scene)
 from r2s.physopt.swap_choice import (MOVED_DEG, MOVED_M, SolutionSummary, prefer_propped,
                                     prefer_swapped, swap_candidates)
 from r2s.metrics.observation import observe_scene, render_objects, silhouette_iou
@@ -191,24 +193,30 @@ def _solve_props_checked(ctx: StageContext, params: dict, pieces: dict, meshes: 
                          state: SceneState, order: list[int], seen: dict, log: dict,
                          parents: dict, hidden, view: Optional[InputScene]
                          ) -> tuple[Solved, dict]:
-    """:func:`solve_scene` without the hidden support props; where that leaves an object
-    that fell off another in the first check flagged or still moving
-    (:func:`_fallen_and_left`), the scene solved again with them
-    (:mod:`r2s.physopt.support_prop`) from the same start, and of the two the solution
-    :func:`prefer_propped` prefers, returned with its log; its collision pieces are left in
-    ``pieces`` (in place). The log records the choice (``support_props_choice``)."""
+    """The physopt pass (:func:`prepare_scene`, :func:`finish_scene`) without the hidden
+    support props; where that leaves an object that fell off another in the first check
+    flagged or still moving (:func:`_fallen_and_left`), the repairs run again from the same
+    prepared scene with the props (:func:`give_props`), and of the two the solution
+    :func:`prefer_propped` prefers is returned with its log; its collision pieces are left
+    in ``pieces`` (in place). The log records the choice (``support_props_choice``)."""
     opt = ctx.options
+    make_world = world_factory(pieces, state, order, opt)
+    prepared = prepare_scene(make_world, pieces, params, meshes, state, order, opt, log,
+                             ctx.progress)
     propped_pieces, propped_log = dict(pieces), copy.deepcopy(log)
-    solved = solve_scene(params, pieces, meshes, state, order, seen,
-                         opt.model_copy(update={"support_props": False}), log, ctx.progress,
-                         parents, hidden)
+    solved = finish_scene(make_world, prepared, meshes, state, order, seen, opt, log,
+                          ctx.progress)
     if not opt.support_props or not _fallen_and_left(log, parents or {}, solved, opt):
         return solved, log
     ctx.progress("solving again with hidden props under what fell", 0.6)
-    propped = solve_scene(params, propped_pieces, meshes, state, order, seen, opt,
-                          propped_log, ctx.progress, parents, hidden)
+    propped_world = world_factory(propped_pieces, state, order, opt)
+    propped_world.checked.update(make_world.checked)  # the same pieces until props are added
+    give_props(propped_world, propped_pieces, prepared.params, [o.id for o in state.objects],
+               parents, state, opt, propped_log, hidden)
     if not propped_log.get("support_props"):
         return solved, log
+    propped = finish_scene(propped_world, prepared, meshes, state, order, seen, opt,
+                           propped_log, ctx.progress)
     summaries = [_observed_summary(view, meshes, s, opt) for s in (solved, propped)]
     keep = prefer_propped(*summaries)
     record = {"props": propped_log["support_props"], "kept": keep,
