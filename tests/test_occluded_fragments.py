@@ -17,18 +17,21 @@ BOX = (200, 40, 40)
 
 
 def _scene(occluder_z: float = 0.70, piece_colour=BOX, gap_label: int = 3,
-           piece_z: float = 0.80):
-    """Box id 1 at columns 20-69, occluder (or table, ``gap_label`` 0) at 70-89, the box's
-    far end id 9 at 90-99, all in rows 40-79; table elsewhere at 0.9 m."""
+           piece_z: float = 0.80, occluder_px: int = 20):
+    """Box id 1 at columns 20-69, occluder (or table, ``gap_label`` 0) at 70-89
+    (``occluder_px`` columns), the box's far end id 9 in the 10 columns after it, all in
+    rows 40-79; table elsewhere at 0.9 m."""
     masks = np.zeros((H, W), np.int32)
     depth = np.full((H, W), 0.9)
     rgb = np.full((H, W, 3), 128, np.uint8)
     masks[40:80, 20:70], depth[40:80, 20:70], rgb[40:80, 20:70] = 1, 0.80, BOX
-    masks[30:90, 70:90], depth[30:90, 70:90] = gap_label, occluder_z
-    rgb[30:90, 70:90] = (40, 60, 200) if gap_label else 128
+    gap = slice(70, 70 + occluder_px)
+    masks[30:90, gap], depth[30:90, gap] = gap_label, occluder_z
+    rgb[30:90, gap] = (40, 60, 200) if gap_label else 128
     if gap_label == 0:
-        depth[30:90, 70:90] = 0.9
-    masks[40:80, 90:100], depth[40:80, 90:100], rgb[40:80, 90:100] = 9, piece_z, piece_colour
+        depth[30:90, gap] = 0.9
+    end = slice(70 + occluder_px, 80 + occluder_px)
+    masks[40:80, end], depth[40:80, end], rgb[40:80, end] = 9, piece_z, piece_colour
     return masks, depth, rgb
 
 
@@ -84,3 +87,26 @@ def test_a_declared_piece_keeps_its_id():
     masks, depth, rgb = _scene()
     parents = fragment_parents(masks, depth, rgb, declared_ids=[9], K=K)
     assert list(parents) == [1] and parents[1][0] == 9
+
+
+def test_a_piece_past_an_occluder_two_pixels_wide_joins_it():
+    """A far camera: the occluder between the box and its end is 2 px wide (the path 3 px,
+    too short to leave readings past its ends), 100 mm in front of both: joined on its
+    two pixels' readings. The same thin gap over the table, or a thin object behind the
+    pieces, keeps them apart."""
+    masks, depth, rgb = _scene(occluder_px=2)
+    b = bridge(masks, depth, rgb, K, 9, 1)
+    assert b is not None and b.occluder_ids == (3,)
+    assert abs(b.gap_px - 3.0) < 0.5 and b.hidden_fraction == 1.0
+    assert occluded_parents(masks, depth, rgb, K) == {9: (1, b.describe())}
+    masks, depth, rgb = _scene(occluder_px=2, gap_label=0)
+    assert bridge(masks, depth, rgb, K, 9, 1) is None
+    masks, depth, rgb = _scene(occluder_px=2, occluder_z=0.85)
+    assert bridge(masks, depth, rgb, K, 9, 1) is None
+
+
+def test_a_one_pixel_occluder_is_not_enough():
+    """One occluder pixel on the path: fewer than MIN_SHORT_PATH_READINGS, apart (the
+    gap is 2 px: the pieces nearly touch, and the boundary test judges such pairs)."""
+    masks, depth, rgb = _scene(occluder_px=1)
+    assert bridge(masks, depth, rgb, K, 9, 1) is None

@@ -46,6 +46,10 @@ MIN_HIDDEN_FRACTION = 0.9
 """Share of the path's valid depth readings (its first and last ``END_PX`` left out: depth
 edges fly) that must lie in front of the line between the pieces."""
 MIN_PATH_READINGS = 3
+MIN_SHORT_PATH_READINGS = 2
+"""A path too short for ``MIN_PATH_READINGS`` past its ends (``END_PX``) is read at every
+occluder pixel on it, and needs this many readings: an occluder 2 px wide, the shaft of a
+screwdriver 1.0-1.4 m from the camera between a cup and a strip of it."""
 END_PX = 2
 END_WINDOW_PX = 4
 """The depth of a piece's end: the median of its readings within this many pixels."""
@@ -165,10 +169,15 @@ def bridge(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray, K: np.ndarra
     line = 1.0 / ((1.0 - t) / za + t / zb)
     along = t * gap_px
     inner = between & (along > END_PX) & (along < gap_px - END_PX)
+    needed = MIN_PATH_READINGS
+    if int(inner.sum()) < MIN_PATH_READINGS:
+        # a thin occluder (a far camera's few pixels): every pixel of it on the path; its
+        # readings are its own surface's near the path (_id_depth), not the edge pixel's
+        inner, needed = between, MIN_SHORT_PATH_READINGS
     z = np.array([_id_depth(masks, depth, (r, c), int(i)) if ok else np.nan
                   for r, c, i, ok in zip(pr, pc, ids, inner)])
     valid = np.isfinite(z)
-    if int(valid.sum()) < MIN_PATH_READINGS:
+    if int(valid.sum()) < needed:
         return None
     hidden = float(np.mean(z[valid] < line[valid] - OCCLUSION_MARGIN_M))
     if hidden < MIN_HIDDEN_FRACTION:
