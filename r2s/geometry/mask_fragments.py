@@ -76,7 +76,7 @@ On 70 synthetic scenes (seeds 600-669) and the 10 realistic benchmark scenes, th
 at most 300 px whose boundary with a larger one is >= 90 % continuous over >= 10 pairs
 and that the rule before did not join: 8 pairs, all pieces of one object (colour set
 distances 13.8-39.9 in 6, 73.5 and 192.8 in 2); no pair of different objects. The bound
-was 95 % until a camera 1.0-1.4 m away (depth noise 6-9 mm) left a screwdriver's 59 px
+was 95 % until a camera 1.0-1.4 m away (depth noise about 4 mm) left a screwdriver's 59 px
 strip apart at 91 % (docs/realistic.md, "A far camera")."""
 MIN_STRIP_PX = 8
 """A strip with fewer pixels past the bleed band is taken whole (bleed band included)."""
