@@ -106,7 +106,7 @@ def test_a_piece_past_an_occluder_two_pixels_wide_joins_it():
 
 
 def test_a_one_pixel_occluder_is_not_enough():
-    """One occluder pixel on the path: fewer than MIN_SHORT_PATH_READINGS, apart (the
-    gap is 2 px: the pieces nearly touch, and the boundary test judges such pairs)."""
+    """One occluder pixel on the path (the gap 2 px): fewer readings than
+    MIN_SHORT_PATH_READINGS, so the pieces stay apart."""
     masks, depth, rgb = _scene(occluder_px=1)
     assert bridge(masks, depth, rgb, K, 9, 1) is None
