@@ -117,14 +117,22 @@ def levelled(scene: InputScene, limit_deg: float = GROSS_TILT_DEG) -> InputScene
     return replace(out, warnings=list(out.warnings) + [note])
 
 
+def declared_labels(scene: InputScene) -> dict[int, str]:
+    """id -> the label objects.json gives it (ids without one are left out: their label is
+    the placeholder ``object_<id>``)."""
+    return {o.id: o.label for o in scene.objects
+            if o.declared and o.label != f"object_{o.id}"}
+
+
 def merged_fragments(scene: InputScene) -> InputScene:
     """``scene`` with every fragment id's mask pixels given to the object it is part of
     and its :class:`ObjectSpec` dropped (ids with a shape prior are never fragments; a
-    declared id is kept over an undeclared one)."""
+    declared id is kept over an undeclared one; two ids whose objects.json labels differ
+    are two objects)."""
     protected = [o.id for o in scene.objects if o.prior_mesh is not None]
     declared = [o.id for o in scene.objects if o.declared]
     parents = fragment_parents(scene.masks, scene.depth_m, scene.rgb, protected, declared,
-                               K=scene.camera.K)
+                               K=scene.camera.K, labels=declared_labels(scene))
     parents = {f: p for f, p in parents.items()
                if f in scene.ids and p[0] in scene.ids}
     if not parents:

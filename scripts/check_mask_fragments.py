@@ -26,6 +26,7 @@ sys.path.insert(0, str(REPO))
 
 from r2s.geometry.mask_fragments import fragment_parents  # noqa: E402
 from r2s.io.input_scene import load_input  # noqa: E402
+from r2s.scene_model import declared_labels  # noqa: E402
 
 
 def check(scene: Path, occluded: bool = True) -> dict[str, int]:
@@ -36,7 +37,8 @@ def check(scene: Path, occluded: bool = True) -> dict[str, int]:
     protected = [o.id for o in view.objects if o.prior_mesh is not None]
     declared = [o.id for o in view.objects if o.declared]
     parents = fragment_parents(view.masks, view.depth_m, view.rgb, protected, declared,
-                               view.camera.K if occluded else None)
+                               view.camera.K if occluded else None,
+                               labels=declared_labels(view))
 
     def owner(i: int) -> int:
         return extra.get(i, i)  # the gt object an id belongs to

@@ -42,6 +42,23 @@ def test_a_split_box_is_one_object():
     assert set(np.unique(merged)) == {0, 1} and (merged == 1).sum() == 40 * 80
 
 
+def test_ids_the_user_labelled_differently_are_never_merged():
+    """The split box above, its two ids declared in objects.json as a "duck" and a "cup"
+    (a duck against a cup of its colour, at a far camera): two objects, kept apart. The
+    same labels, or a label on one id only, leave the join to the image."""
+    masks = np.zeros((H, W), np.int32)
+    masks[20:60, 20:70] = 1
+    masks[20:60, 70:100] = 7
+    depth = _plane_depth()
+    rgb = _image((200, 40, 40), (200, 40, 40), 70)
+    assert fragment_parents(masks, depth, rgb, declared_ids=[1, 7],
+                            labels={1: "cup", 7: "duck"}) == {}
+    for labels in ({1: "cup", 7: "cup"}, {1: "cup"}):
+        parents = fragment_parents(masks, depth, rgb, declared_ids=list(labels),
+                                   labels=labels)
+        assert list(parents) == [7] and parents[7][0] == 1
+
+
 def test_objects_at_different_depths_are_not_merged():
     """Same colour, but the right one stands 40 mm in front: a depth jump along the
     whole boundary."""

@@ -110,3 +110,15 @@ def test_a_one_pixel_occluder_is_not_enough():
     MIN_SHORT_PATH_READINGS, so the pieces stay apart."""
     masks, depth, rgb = _scene(occluder_px=1)
     assert bridge(masks, depth, rgb, K, 9, 1) is None
+
+
+def test_a_piece_labelled_as_another_object_is_not_joined():
+    """The box's far end (id 9) declared with a label of its own: another object, apart;
+    with the box's label it is still joined."""
+    masks, depth, rgb = _scene()
+    other = fragment_parents(masks, depth, rgb, declared_ids=[1, 9], K=K,
+                             labels={1: "box", 9: "ball"})
+    assert other == {}
+    same = fragment_parents(masks, depth, rgb, declared_ids=[1, 9], K=K,
+                            labels={1: "box", 9: "box"})
+    assert list(same) == [9] and same[9][0] == 1

@@ -34,7 +34,7 @@ Pixel ``(row, col)``; depth along the camera z axis in metres, NaN = no reading.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable, Optional
+from typing import Callable, Iterable, Mapping, Optional
 
 import numpy as np
 from scipy import ndimage
@@ -281,12 +281,14 @@ def _outline_fraction(masks: np.ndarray, small: int, large: int) -> float:
 
 def fragment_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
                      protected_ids: Iterable[int] = (), declared_ids: Iterable[int] = (),
-                     K: Optional[np.ndarray] = None) -> dict[int, tuple[int, str]]:
+                     K: Optional[np.ndarray] = None,
+                     labels: Optional[Mapping[int, str]] = None) -> dict[int, tuple[int, str]]:
     """``{fragment id: (the id of the object it is part of, why)}`` (see the module
     docstring). ``protected_ids``: ids that are whole objects (they have a shape prior);
     ``declared_ids``: ids the user named (kept over undeclared ones when merged). With the
     camera's ``K`` (3, 3), ids left whole by the boundary test are then tested for pieces
-    seen past an occluder (:mod:`r2s.geometry.occluded_fragments`).
+    seen past an occluder (:mod:`r2s.geometry.occluded_fragments`). ``labels``: the labels
+    the user gave ids; two ids with different labels are two objects and never joined.
 
     The boundary test runs again on the masks with the pieces found merged, up to
     ``MERGE_ROUNDS`` times: a sliver lying along the cut between two halves of a split
@@ -294,16 +296,22 @@ def fragment_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
     half does the other half's boundary with it become long enough to judge."""
     protected = set(int(i) for i in protected_ids)
     declared = set(int(i) for i in declared_ids) | protected
+    named = {int(i): str(v) for i, v in (labels or {}).items()}
+
+    def distinct(a: int, b: int) -> bool:
+        return a in named and b in named and named[a] != named[b]
+
     resolved: dict[int, tuple[int, str]] = {}
     for _ in range(MERGE_ROUNDS):
         found = _boundary_parents(merge_masks(masks, resolved), depth_m, rgb, protected,
-                                  declared)
+                                  declared, distinct)
         if not found:
             break
         resolved = _composed(resolved, found)
     if K is None:
         return resolved
-    bridged = occluded_parents(merge_masks(masks, resolved), depth_m, rgb, K, protected)
+    bridged = occluded_parents(merge_masks(masks, resolved), depth_m, rgb, K, protected,
+                               distinct)
     resolved.update(bridged)
     for piece, (root, why) in bridged.items():
         if piece in declared and root not in declared and root not in resolved:
@@ -315,12 +323,14 @@ def fragment_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
 
 
 def _boundary_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray,
-                      protected: set[int], declared: set[int]) -> dict[int, tuple[int, str]]:
-    """One round of the boundary test: ``{fragment id: (root id, why)}``, chains resolved."""
+                      protected: set[int], declared: set[int],
+                      distinct: Callable[[int, int], bool]) -> dict[int, tuple[int, str]]:
+    """One round of the boundary test: ``{fragment id: (root id, why)}``, chains resolved;
+    no pair that ``distinct`` says are two objects."""
     parent: dict[int, tuple[int, str]] = {}
     evidence = sorted(boundary_evidence(masks, depth_m, rgb), key=lambda e: -e.pairs)
     for ev in evidence:
-        if not ev.is_one_object():
+        if not ev.is_one_object() or distinct(ev.small_id, ev.large_id):
             continue
         small, large = ev.small_id, ev.large_id
         if small in protected:

@@ -29,7 +29,7 @@ the camera z axis in metres, NaN = no reading; ``K`` (3, 3) the pinhole intrinsi
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable, Optional
+from typing import Callable, Iterable, Optional
 
 import numpy as np
 from scipy import ndimage
@@ -194,11 +194,14 @@ def bridge(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray, K: np.ndarra
 
 
 def occluded_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray, K: np.ndarray,
-                     protected_ids: Iterable[int] = ()) -> dict[int, tuple[int, str]]:
+                     protected_ids: Iterable[int] = (),
+                     distinct: Optional[Callable[[int, int], bool]] = None
+                     ) -> dict[int, tuple[int, str]]:
     """``{piece id: (the id of the whole object it is part of, why)}`` for the pieces of
     the module docstring. ``protected_ids`` (ids with a shape prior: whole objects) are never
-    pieces. Ids are tried smallest first, each against every id at least 1 /
-    ``MAX_AREA_SHARE`` times its size (so none of those is a piece yet)."""
+    pieces, nor is an id joined to one that ``distinct(a, b)`` says is another object. Ids
+    are tried smallest first, each against every id at least 1 / ``MAX_AREA_SHARE`` times
+    its size (so none of those is a piece yet)."""
     masks = np.asarray(masks)
     protected = {int(i) for i in protected_ids}
     ids = [int(i) for i in np.unique(masks) if i > 0]
@@ -208,7 +211,8 @@ def occluded_parents(masks: np.ndarray, depth_m: np.ndarray, rgb: np.ndarray, K:
         if small in protected:
             continue
         found = [bridge(masks, depth_m, rgb, K, small, large) for large in ids
-                 if sizes[small] <= MAX_AREA_SHARE * sizes[large]]
+                 if sizes[small] <= MAX_AREA_SHARE * sizes[large]
+                 and not (distinct is not None and distinct(small, large))]
         found = [f for f in found if f is not None]
         if found:
             best = min(found, key=lambda f: f.gap_m)
