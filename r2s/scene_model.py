@@ -29,7 +29,7 @@ from r2s.errors import R2SError
 from r2s.geometry.background_instances import background_instances
 from r2s.geometry.declared_level import GROSS_TILT_DEG, declared_level, gross_level_correction
 from r2s.geometry.mask_fragments import fragment_parents, merge_masks
-from r2s.io.input_scene import Camera, InputScene
+from r2s.io.input_scene import Camera, InputScene, placeholder_label
 from r2s.io.state import SceneState
 
 
@@ -119,9 +119,9 @@ def levelled(scene: InputScene, limit_deg: float = GROSS_TILT_DEG) -> InputScene
 
 def declared_labels(scene: InputScene) -> dict[int, str]:
     """id -> the label objects.json gives it (ids without one are left out: their label is
-    the placeholder ``object_<id>``)."""
+    the placeholder, :func:`r2s.io.input_scene.placeholder_label`)."""
     return {o.id: o.label for o in scene.objects
-            if o.declared and o.label != f"object_{o.id}"}
+            if o.declared and o.label != placeholder_label(o.id)}
 
 
 def merged_fragments(scene: InputScene) -> InputScene:

@@ -426,6 +426,11 @@ def load_objects(paths: ScenePaths) -> dict[int, ObjectEntry]:
     return {o.id: o for o in parsed.objects}
 
 
+def placeholder_label(obj_id: int) -> str:
+    """The label of an id that objects.json gives none (or has no entry for)."""
+    return f"object_{obj_id}"
+
+
 def load_input(scene_dir: Path) -> InputScene:
     """Load and validate ``scene_dir/input``; raise :class:`InputError` on the first problem."""
     paths = ScenePaths(Path(scene_dir))
@@ -451,7 +456,7 @@ def load_input(scene_dir: Path) -> InputScene:
     for obj_id in ids:
         visible = int(((masks == obj_id) & np.isfinite(depth)).sum())
         entry = entries.get(obj_id)
-        prior, pose, label = None, None, f"object_{obj_id}"
+        prior, pose, label = None, None, placeholder_label(obj_id)
         if entry is not None:
             label = entry.label or label
             if entry.prior_mesh:
