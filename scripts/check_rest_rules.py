@@ -10,8 +10,9 @@ position and orientation every ``REST_POLL_STEPS`` steps, single-threaded. It th
 rule that stops on *net* motion instead: every body's COM stays within ``--window-mm``
 and its orientation within ``--window-deg`` over the last ``--window-polls`` polls, plus the
 1 s probe the check runs before stopping. It prints the steps the rule would save and the
-checks whose moving set (over 5 mm or 2 deg) or failing set (the judge's 50 mm or 5 deg)
-would change.
+checks whose moving set or failing set would change, by physopt's own tests and default
+settings (``RepairSettings.moving``: over 5 mm or 2 deg; ``severities`` >= 1: the judge's
+50 mm or 5 deg).
 
 Usage: python scripts/check_rest_rules.py COPY [--window-mm 0.1,0.5 --window-deg 0.057,0.3]
 """
@@ -34,10 +35,12 @@ import pybullet as pb  # noqa: E402
 
 import r2s.physopt.pybullet_world as pw  # noqa: E402
 import r2s.physopt.repair as repair  # noqa: E402
+from r2s.physopt.repair import severities  # noqa: E402
+from r2s.physopt.settings import RepairSettings  # noqa: E402
 from r2s.metrics.stability import rotation_angle_deg  # noqa: E402
 
-MOVING = (0.005, 2.0)
-FAILING = (0.05, 5.0)
+SETTINGS = RepairSettings()
+"""physopt's defaults: what counts as moving (``moving``) and as failing (``severities``)."""
 
 
 def recording_drift(records: list) -> Callable:
@@ -84,8 +87,12 @@ def drift_at(poll: dict, start: dict) -> dict:
             for i, (c, r) in poll.items()}
 
 
-def over(drifts: dict, limits: tuple[float, float]) -> set:
-    return {i for i, (t, r) in drifts.items() if t > limits[0] or r > limits[1]}
+def moving(drifts: dict) -> set:
+    return set(SETTINGS.moving(drifts))
+
+
+def failing(drifts: dict) -> set:
+    return {i for i, s in severities(drifts, SETTINGS).items() if s >= 1.0}
 
 
 def replay(records: list, polls: int, window_m: float, window_deg: float) -> None:
@@ -103,8 +110,8 @@ def replay(records: list, polls: int, window_m: float, window_deg: float) -> Non
                 fired += 1
                 saved += rec["steps"] - stop
                 early = drift_at(rec["polls"][k], rec["start"])
-                moving_changed += over(early, MOVING) != over(rec["out"], MOVING)
-                failing_changed += over(early, FAILING) != over(rec["out"], FAILING)
+                moving_changed += moving(early) != moving(rec["out"])
+                failing_changed += failing(early) != failing(rec["out"])
                 break
     print(f"checks {len(records)}, steps {total}; the rule stops {fired} checks early and "
           f"saves {saved} steps ({100 * saved / max(total, 1):.0f} %); moving set changed in "
