@@ -86,6 +86,29 @@ def test_only_a_repair_that_makes_the_object_fall_is_undone(monkeypatch, before_
     assert _repaired(out[1]) is not undone
 
 
+@pytest.mark.parametrize("before, after, undone", [
+    ((0.002, 3.1), (0.006, 12.8), True),   # crept 3.1 deg, tips 12.8 deg: fails the judge's 5
+    ((0.002, 3.1), (0.002, 4.9), False),   # turns more, still under 5 deg
+    ((0.002, 6.0), (0.003, 20.0), False),  # it failed by rotation before the repair already
+    ((0.002, 4.9), (0.002, 5.0), True),    # exactly the judge's 5 deg: it fails
+])
+def test_undo_tipping_repairs_undoes_a_repair_that_tips_its_object_past_the_judge(
+        monkeypatch, before, after, undone):
+    def drift_of(params):
+        return {1: after if _repaired(params[1]) else before, 2: (0.0, 0.0)}
+
+    _fake_engine(monkeypatch, drift_of)
+    start = _params()
+    for option in (False, True):
+        log = {"objects": {1: [], 2: []}, "rounds": []}
+        out, _ = repair._unseen_repair_checked(
+            None, start, [1], drift_of(start), [[1, 2]], (1, 1),
+            RepairSettings(undo_tipping_repairs=option), log, set())
+        assert _repaired(out[1]) is not (undone and option)  # off (the default): kept
+        if undone and option:
+            assert f"turned {before[1]:.1f} -> {after[1]:.1f} deg" in log["objects"][1][0]
+
+
 def test_undoing_is_an_option(monkeypatch):
     def drift_of(params):
         return {1: (0.120, 90.0) if _repaired(params[1]) else (0.002, 2.0), 2: (0.0, 0.0)}

@@ -251,6 +251,21 @@ def mass_and_friction_repair(make_world: MakeWorld, params: Params, movers: list
     return params
 
 
+def made_worse(before: tuple[float, float], after: tuple[float, float],
+               settings: RepairSettings) -> bool:
+    """Whether a repair made an object fall: its check drift (COM translation m, rotation
+    deg) reaches ``judge_translation_m``, which it did not ``before``; with
+    ``settings.undo_tipping_repairs`` also when it passed the judge's whole criterion
+    (translation and rotation) before and fails it after, as an object that crept 3 deg
+    and tips 13 deg once its COM moved."""
+    if before[0] < settings.judge_translation_m <= after[0]:
+        return True
+    if not settings.undo_tipping_repairs:
+        return False
+    return (max(severities({0: before}, settings).values()) < 1.0
+            <= max(severities({0: after}, settings).values()))
+
+
 def _unseen_repair_checked(make_world: MakeWorld, params: Params, movers: list[int],
                            result: Drift, orders: list[list[int]], rnd_name: tuple,
                            settings: RepairSettings, log: dict, kept_back: set[int]
@@ -258,11 +273,11 @@ def _unseen_repair_checked(make_world: MakeWorld, params: Params, movers: list[i
     """The movers' COM and friction repair (:func:`mass_and_friction_repair`; not for the
     ids in ``kept_back``), checked and logged as round ``rnd_name`` (number, label).
 
-    With ``settings.undo_falling_repairs``, a mover that the repair makes fall (its drift
-    reaches the judge's ``judge_translation_m``, which it did not before: ``result``) gets
-    its COM and friction back and joins ``kept_back`` (updated in place): the repair pushed
-    the wrong way, as a COM moved towards contacts that tip the object over. The scene is
-    then checked again. Returns the parameters and their check.
+    With ``settings.undo_falling_repairs``, a mover that the repair makes fall
+    (:func:`made_worse`, against its drift in ``result``) gets its COM and friction back
+    and joins ``kept_back`` (updated in place): the repair pushed the wrong way, as a COM
+    moved towards contacts that tip the object over. The scene is then checked again.
+    Returns the parameters and their check.
     """
     rnd, name = rnd_name
     repaired = mass_and_friction_repair(make_world, params, [i for i in movers
@@ -273,16 +288,17 @@ def _unseen_repair_checked(make_world: MakeWorld, params: Params, movers: list[i
                           "moving": settings.moving(new), "drift": _drift_log(new)})
     if not settings.undo_falling_repairs:
         return repaired, new
-    fall = settings.judge_translation_m
     worse = [i for i in movers if not _same(params[i], repaired[i])
-             and result[i][0] < fall <= new[i][0]]
+             and made_worse(result[i], new[i], settings)]
     if not worse:
         return repaired, new
     for i in worse:
         kept_back.add(i)
+        how = (f"fall: moved {1000 * result[i][0]:.0f} -> {1000 * new[i][0]:.0f} mm"
+               if new[i][0] >= settings.judge_translation_m else
+               f"tip: turned {result[i][1]:.1f} -> {new[i][1]:.1f} deg")
         log["objects"][i].append(f"round {rnd}: COM and friction repair undone (it made "
-                                 f"the object fall: moved {1000 * result[i][0]:.0f} -> "
-                                 f"{1000 * new[i][0]:.0f} mm in the check)")
+                                 f"the object {how} in the check)")
     repaired = {**repaired, **{i: params[i] for i in worse}}
     new = check(make_world, repaired, orders, settings.verify_duration_s)
     log["rounds"].append({"round": name, "action": f"COM+friction undone for {worse}",

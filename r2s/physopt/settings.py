@@ -40,6 +40,10 @@ class RepairSettings(BaseModel):
                           "repair when it makes the object fall: its check drift reaches "
                           "judge_translation_m, which it did not before (see "
                           "r2s.physopt.repair).")
+    undo_tipping_repairs: bool = Field(
+        False, description="With undo_falling_repairs, also undo a repair that makes a mover "
+                           "fail the judge's rotation or translation criterion it passed "
+                           "before (off: measured, no gain; docs/physopt.md).")
     max_settle_shift_m: float = Field(
         0.03, gt=0, description="In early rounds, a settled object that moved further is kept "
                                 "at its pose (its neighbours may still settle).")
