@@ -106,6 +106,31 @@ def test_bounded_rounds_that_leave_it_moving_are_redone_without_the_bound():
     assert out[2].world_from_object[2, 3] == pytest.approx(0.03, abs=0.003)  # on the table
 
 
+def test_no_free_attempt_for_what_creeps_under_the_bar(monkeypatch):
+    # the bounded repairs leave object 2 creeping 10 mm and 1 deg (0.2 of the judge's
+    # 50 mm): under free_attempt_severity the rounds are not redone without the bound; at
+    # the default (0) they are
+    import r2s.physopt.solve as solve
+
+    calls = []
+
+    def fake_repairs(make_world, params, order, export_order, opt, log, progress, bound):
+        calls.append(bound)
+        return params, {1: (0.0, 0.0), 2: (0.010, 1.0)}
+
+    monkeypatch.setattr(solve, "verify_and_repair", fake_repairs)
+    for bar, runs in ((0.5, 1), (0.2, 2), (None, 2)):
+        calls.clear()
+        log: dict = {}
+        settings = RepairSettings() if bar is None else RepairSettings(free_attempt_severity=bar)
+        solve.repair_bounded_then_free(None, {}, [1, 2], [1, 2], settings, log,
+                                       lambda *a: None, bound=object())
+        assert len(calls) == runs and calls[0] is not None
+        assert ("free_attempt" in log) is (runs == 1)
+        if runs == 1:
+            assert "[2] moving at 0.20 of the judge's criterion" in log["free_attempt"]
+
+
 @pytest.mark.slow
 def test_the_unbounded_fallback_moves_only_what_still_moves():
     # the fallback settles the toppling cube onto the table, and the lower cube, which

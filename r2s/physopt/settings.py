@@ -102,6 +102,13 @@ class RepairSettings(BaseModel):
                           "first, alone back at that pose or halfway, the others where they "
                           "are, kept where the scene still rests (at most 12 checks; "
                           "r2s/physopt/pull_back.py).")
+    free_attempt_severity: float = Field(
+        0.0, ge=0, description="physopt redoes the repairs from the start without the "
+                               "observation bound when the bounded ones leave an object whose "
+                               "check drift is at least this fraction of the judge's criterion "
+                               "(0, the default: whenever an object still moves; 0.5 measured, "
+                               "not adopted: docs/physopt.md; r2s.physopt.solve."
+                               "repair_bounded_then_free).")
     fallback_severity: float = Field(
         0.5, gt=0, description="The unbounded repairs run when an object's check drift is at "
                                "least this fraction of the judge's criterion after the "

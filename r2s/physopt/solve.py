@@ -22,8 +22,8 @@ from r2s.physopt.observation_bound import ObservationBound, displacement_flags
 from r2s.physopt.params import Drift, Params
 from r2s.physopt.pull_back import pull_back
 from r2s.physopt.support_prop import Hidden, fell, with_prop
-from r2s.physopt.repair import (check, depenetrate_scene, judge_orders, verify_and_repair,
-                                world_factory)
+from r2s.physopt.repair import (check, depenetrate_scene, judge_orders, severities,
+                                verify_and_repair, world_factory)
 from r2s.physical.provenance import com_provenance, friction_provenance
 
 
@@ -152,16 +152,21 @@ def give_props(make_world, pieces: dict, params: Params, export_order: list[int]
 def repair_bounded_then_free(make_world, params: Params, order: list[int],
                               export_order: list[int], opt, log: dict, progress: ProgressFn,
                               bound) -> tuple[Params, Drift]:
-    """The repair rounds bounded by the observation; where they leave objects moving, the
-    same rounds again from the same start without the bound, kept only if fewer objects
-    move after them (then ``log`` is the free attempt's, with ``bounded_attempt_moving``).
-    Stability never ends worse than without the bound; the observation is kept whenever
-    the bounded rounds suffice."""
+    """The repair rounds bounded by the observation; where they leave an object moving by
+    at least ``opt.free_attempt_severity`` of the judge's criterion, the same rounds again
+    from the same start without the bound, kept only if fewer objects move after them
+    (then ``log`` is the free attempt's, with ``bounded_attempt_moving``). The observation is
+    kept whenever the bounded rounds suffice."""
     start_log = copy.deepcopy(log)
     bounded, drift = verify_and_repair(make_world, params, order, export_order, opt, log,
                                        progress, bound)
     still = opt.moving(drift)
     if bound is None or not still:
+        return bounded, drift
+    worst = max(severities(drift, opt).values(), default=0.0)
+    if worst < opt.free_attempt_severity:
+        log["free_attempt"] = (f"not run: the bounded repairs leave {sorted(still)} moving at "
+                               f"{worst:.2f} of the judge's criterion at most")
         return bounded, drift
     free_log = copy.deepcopy(start_log)
     free, free_drift = verify_and_repair(make_world, params, order, export_order, opt,
