@@ -221,6 +221,34 @@ def test_an_object_that_lost_most_of_its_mask_since_init_is_flagged():
     assert not blocks[3]["flagged"]
 
 
+@pytest.mark.parametrize("min_iou_kept, flagged", [(0.75, True), (0.5, False)])
+def test_an_object_that_lost_a_third_of_its_mask_is_flagged_at_the_default(min_iou_kept,
+                                                                            flagged):
+    """A 30 x 30 px slab moved 6 px keeps 24 x 30 of its 900 px: IoU 720 / 1080 = 0.667 of
+    the 1.0 it has where it was seen. Under the default share kept (0.75) it is flagged; the
+    rule before (0.5) let it pass."""
+    from r2s.metrics.observation_check import FlagTolerances, check_observation
+
+    box = slab(40, 69, 30, 59, top_z=0.2)
+    masks = mask_of(40, 69, 30, 59, 1)
+    depth = np.where(masks > 0, 0.8, 1.0)
+    shift = np.eye(4)
+    shift[0, 3] = 6 * 0.8 / F
+    tol = (FlagTolerances(max_free_space=10.0) if min_iou_kept == 0.75 else
+           FlagTolerances(max_free_space=10.0, min_iou_kept=min_iou_kept))
+    assert FlagTolerances().min_iou_kept == 0.75
+    check = check_observation([box.copy().apply_transform(shift)], [1], K, CAMERA, depth,
+                              masks, world_from_object={1: shift},
+                              init_world_from_object={1: np.eye(4)},
+                              centres_in_object={1: box.centroid}, tolerances=tol)
+    block = check.blocks[1]
+    assert block["iou"] == pytest.approx(720 / 1080, abs=1e-4)
+    assert block["iou_seen"] == pytest.approx(1.0, abs=1e-9)
+    assert block["flagged"] is flagged
+    if flagged:
+        assert "fell from 1.00 where it was seen to 0.67 (< 75% of it)" in block["reason"]
+
+
 def test_ucd_split_at_the_tables_level_separates_what_the_mask_took_in():
     """A 40 mm box on the table (z = 0) is seen on its top face (exact points) and its mask
     also takes in 25 table points 0.2 m behind it, at z = 0.001: UCD over all points is

@@ -8,8 +8,8 @@ each object that
 * moved farther than a tolerance from its init pose (where it was seen), or
 * covers too little of its own mask (silhouette IoU below ``min_iou`` for a mask of at
   least ``LARGE_MASK_PX`` pixels), or
-* lost by its own move most of the overlap with its mask that it had where it was seen
-  (IoU below ``min_iou_kept`` times the IoU it has when it alone is put back at its init
+* lost by its own move a quarter or more of the overlap with its mask that it had where it
+  was seen (IoU below ``min_iou_kept`` times the IoU it has when it alone is put back at its init
   pose, ``iou_seen``; any mask size: a 30 mm sliver moved 7 mm is far from where it was
   seen though within ``displacement_m``), or
 * fills space the camera saw empty (free-space violation above ``max_free_space``), or
@@ -43,7 +43,7 @@ class FlagTolerances:
     displacement_deg: float = SEEN_TOLERANCE_DEG
     min_iou: float = 0.5
     max_free_space: float = 0.5
-    min_iou_kept: float = 0.5
+    min_iou_kept: float = 0.75
     min_iou_seen: float = 0.3
     """The IoU-kept test applies to objects that matched their mask at least this well
     where they were seen."""
@@ -66,8 +66,8 @@ def displacement_reason(displacement_m: Optional[float], displacement_deg: Optio
 
 def _iou_lost(iou: Optional[float], iou_seen: Optional[float],
               tol: FlagTolerances) -> Optional[str]:
-    """Why an object's own move since its init pose lost it most of its overlap with its
-    mask (``iou`` against ``iou_seen``), or None."""
+    """Why an object's own move since its init pose lost it a large share of its overlap
+    with its mask (``iou`` against ``iou_seen``), or None."""
     if iou_seen is None or iou_seen < tol.min_iou_seen:
         return None
     now = iou or 0.0

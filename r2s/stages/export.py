@@ -54,7 +54,7 @@ class Options(StageOptions, BodyParams):
                                 "below this (masks of at least 1000 px).")
     flag_max_free_space: float = Field(0.5, ge=0, description="... or that fills more space "
                                        "the camera saw empty than this share of its mask.")
-    flag_min_iou_kept: float = Field(0.5, ge=0, le=1, description="... or whose silhouette "
+    flag_min_iou_kept: float = Field(0.75, ge=0, le=1, description="... or whose silhouette "
                                      "IoU fell below this share of the IoU it has when it "
                                      "alone is put back at its init pose, where it was seen "
                                      "(any mask size; 0 = off).")
