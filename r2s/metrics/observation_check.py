@@ -8,7 +8,7 @@ each object that
 * moved farther than a tolerance from its init pose (where it was seen), or
 * covers too little of its own mask (silhouette IoU below ``min_iou`` for a mask of at
   least ``LARGE_MASK_PX`` pixels), or
-* lost by its own move a quarter or more of the overlap with its mask that it had where it
+* lost by its own move a large share of the overlap with its mask that it had where it
   was seen (IoU below ``min_iou_kept`` times the IoU it has when it alone is put back at its init
   pose, ``iou_seen``; any mask size: a 30 mm sliver moved 7 mm is far from where it was
   seen though within ``displacement_m``), or
