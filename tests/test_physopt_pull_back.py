@@ -156,20 +156,26 @@ def test_a_seen_pose_inside_the_table_is_left_out_before_any_check():
 
 
 @pytest.mark.slow
-def test_one_object_goes_halfway_back_when_its_seen_pose_overlaps_a_neighbour():
-    # init saw cube 1 with 4 mm of it inside cube 2 (centres 56 mm apart, 60 mm cubes);
-    # the solve started and ended 20 mm away. Every group candidate is refused for the
-    # overlap; one by one, the seen pose is refused too, and halfway (10 mm from the seen
-    # pose, a 6 mm gap) rests and is kept.
-    seen = {1: _pose(0.056, 0.0, 0.03), 2: _pose(0.0, 0.0, 0.03)}
+@pytest.mark.parametrize("seen_x, closer_refused, kept_fraction, kept_x", [
+    (0.056, False, 0.75, 0.061),  # 4 mm into cube 2 where seen; at 3/4 a 1 mm gap rests
+    (0.046, True, 0.5, 0.061),    # 14 mm into it; at 3/4 still 6.5 mm in, halfway rests
+])
+def test_one_object_goes_as_far_back_as_rests_when_its_seen_pose_overlaps_a_neighbour(
+        seen_x, closer_refused, kept_fraction, kept_x):
+    # init saw cube 1 partly inside cube 2 (60 mm cubes); the solve started and ended at
+    # 76 mm. Every group candidate is refused for the overlap; one by one, the seen pose is
+    # refused too, halfway rests and is kept, and three quarters of the way (half of what
+    # is left) is tried next and kept where it neither overlaps nor moves.
+    seen = {1: _pose(seen_x, 0.0, 0.03), 2: _pose(0.0, 0.0, 0.03)}
     start = {1: _pose(0.076, 0.0, 0.03), 2: _pose(0.0, 0.0, 0.03)}
     params, out, drift, log, settings = _boxes(start, dict(start), seen, one_by_one=True)
     record = log["pull_back"]
     assert record["away_from_seen"] == [1]
     assert [(t["candidate"], t["fraction"]) for t in record["tried"]] == [
-        ("seen", 1.0), ("object 1", 1.0), ("object 1", 0.5)]
+        ("seen", 1.0), ("object 1", 1.0), ("object 1", 0.5), ("object 1 closer", 0.5)]
     assert record["tried"][1]["overlapping"] == [1]
-    assert record["one_by_one"] == [{"id": 1, "fraction": 0.5}]
-    assert out[1].world_from_object[:3, 3] == pytest.approx([0.066, 0.0, 0.03], abs=1e-9)
+    assert ("overlapping" in record["tried"][3]) is closer_refused
+    assert record["one_by_one"] == [{"id": 1, "fraction": kept_fraction}]
+    assert out[1].world_from_object[:3, 3] == pytest.approx([kept_x, 0.0, 0.03], abs=1e-9)
     assert out[2] is params[2]
     assert settings.moving(drift) == []

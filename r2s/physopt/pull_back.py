@@ -33,8 +33,10 @@ back are checked in the judge's worlds, in order of least observation change:
 4. ``object N`` (``one_by_one``): from the state that stands after 0-3, each object still
    away from its seen pose (else its start pose), farthest first, is tried alone at that
    pose and then ``ONE_BY_ONE_FRACTIONS`` of the way back, the others where they are;
-   each that rests is kept before the next object is tried (``MAX_ONE_BY_ONE_CHECKS``
-   candidates at most). The candidates 0-3 put whole groups back at once, so one object
+   each that rests is kept before the next object is tried. Where a shorter way back
+   rests and a longer one did not, halfway between them is tried too (``object N
+   closer``, its fraction a share of the way left) and kept if it rests (``MAX_ONE_BY_ONE_CHECKS``
+   candidates at most in all). The candidates 0-3 put whole groups back at once, so one object
    that cannot go back (a fruit whose tuned COM only holds it where it rolled to) kept
    every other one where the repairs had left it.
 
@@ -198,15 +200,27 @@ def _one_by_one(attempt, state: tuple[Params, Drift], target: Mapping[int, np.nd
     record["one_by_one"] = kept_here
     checks = 0
     for i in sorted(away, key=distance, reverse=True):
+        failed = None  # the largest fraction tried that did not rest
         for fraction in ONE_BY_ONE_FRACTIONS:
             if checks >= MAX_ONE_BY_ONE_CHECKS:
                 return state
             checks += 1
             _, rested = attempt(f"object {i}", [i], fraction, target, state[0])
-            if rested is not None:
-                state = rested
-                kept_here.append({"id": i, "fraction": fraction})
-                break
+            if rested is None:
+                failed = fraction
+                continue
+            state = rested
+            kept_here.append({"id": i, "fraction": fraction})
+            if failed is not None and checks < MAX_ONE_BY_ONE_CHECKS:
+                # halfway between what rests and what did not, as a share of the way left
+                middle = (fraction + failed) / 2
+                checks += 1
+                _, closer = attempt(f"object {i} closer", [i],
+                                    (middle - fraction) / (1.0 - fraction), target, state[0])
+                if closer is not None:
+                    state = closer
+                    kept_here[-1]["fraction"] = middle
+            break
     return state
 
 
