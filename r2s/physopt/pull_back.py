@@ -35,10 +35,10 @@ back are checked in the judge's worlds, in order of least observation change:
    pose and then ``ONE_BY_ONE_FRACTIONS`` of the way back, the others where they are;
    each that rests is kept before the next object is tried. Where a shorter way back
    rests and a longer one did not, halfway between them is tried too (``object N
-   closer``, its fraction a share of the way left) and kept if it rests (``MAX_ONE_BY_ONE_CHECKS``
-   candidates at most in all). The candidates 0-3 put whole groups back at once, so one object
-   that cannot go back (a fruit whose tuned COM only holds it where it rolled to) kept
-   every other one where the repairs had left it.
+   closer``, its fraction a share of the way left) and kept if it rests
+   (``MAX_ONE_BY_ONE_CHECKS`` candidates at most in all). The candidates 0-3 put whole
+   groups back at once, so one object that cannot go back (a fruit whose tuned COM only
+   holds it where it rolled to) kept every other one where the repairs had left it.
 
 Candidates 0-3 take at most ``2 * MAX_EXCLUSIONS + 3`` checks; the first in which nothing
 moves (the same at-rest tolerance the repairs answer to) is kept, and when none rests the
@@ -187,8 +187,9 @@ def pull_back(make_world: MakeWorld, params: Params, drift: Drift,
 def _one_by_one(attempt, state: tuple[Params, Drift], target: Mapping[int, np.ndarray],
                 centres: Mapping[int, np.ndarray], record: dict) -> tuple[Params, Drift]:
     """Step 4 of the module docstring from ``state`` (params, drift): each object still
-    away from ``target``, farthest first, alone back (``ONE_BY_ONE_FRACTIONS``); every
-    one that rests is kept. ``record["one_by_one"]`` lists what was kept."""
+    away from ``target``, farthest first, alone back (``ONE_BY_ONE_FRACTIONS``, then
+    halfway towards the last that failed); every one that rests is kept.
+    ``record["one_by_one"]`` lists what was kept."""
     params = state[0]
     away = moved_objects(params, target, centres)
 
@@ -200,7 +201,7 @@ def _one_by_one(attempt, state: tuple[Params, Drift], target: Mapping[int, np.nd
     record["one_by_one"] = kept_here
     checks = 0
     for i in sorted(away, key=distance, reverse=True):
-        failed = None  # the largest fraction tried that did not rest
+        failed = None  # the last (smallest) fraction tried that did not rest
         for fraction in ONE_BY_ONE_FRACTIONS:
             if checks >= MAX_ONE_BY_ONE_CHECKS:
                 return state
