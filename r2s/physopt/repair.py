@@ -185,10 +185,20 @@ def _check(make_world: MakeWorld, params: Params, orders: list[list[int]],
     return worst
 
 
+def severity(drift: tuple[float, float], settings: RepairSettings) -> float:
+    """One object's check drift (COM translation m, rotation deg) as a fraction of the
+    judge's criterion (>= 1: fails)."""
+    return max(drift[0] / settings.judge_translation_m, drift[1] / settings.judge_rotation_deg)
+
+
 def severities(drifts: Drift, settings: RepairSettings) -> dict[int, float]:
-    """Per object, its drift as a fraction of the judge's criterion (>= 1: fails)."""
-    return {i: max(t / settings.judge_translation_m, r / settings.judge_rotation_deg)
-            for i, (t, r) in drifts.items()}
+    """Per object, its drift as a fraction of the judge's criterion (:func:`severity`)."""
+    return {i: severity(d, settings) for i, d in drifts.items()}
+
+
+def worst_severity(drifts: Drift, settings: RepairSettings) -> float:
+    """The largest :func:`severity` of ``drifts`` (0 for none)."""
+    return max(severities(drifts, settings).values(), default=0.0)
 
 
 def score(drifts: Drift, settings: RepairSettings, params: Optional[Params] = None,
@@ -199,12 +209,12 @@ def score(drifts: Drift, settings: RepairSettings, params: Optional[Params] = No
     at all; then (with a ``bound``) fewest objects beyond the observation tolerance; then
     least drift. The bounded repairs come first (:func:`verify_and_repair`), so a state
     beyond the tolerance only wins when it is the only one that rests."""
-    severity = severities(drifts, settings)
-    failing = [i for i, s in severity.items() if s >= 1.0]
+    shares = severities(drifts, settings)
+    failing = [i for i, s in shares.items() if s >= 1.0]
     far = 0
     if bound is not None and params is not None:
         far = len(bound.beyond({i: p.world_from_object for i, p in params.items()}))
-    return (len(failing), round(sum(severity[i] for i in failing), 1),
+    return (len(failing), round(sum(shares[i] for i in failing), 1),
             len(settings.moving(drifts)), far, sum(t for t, _ in drifts.values()))
 
 
@@ -262,8 +272,7 @@ def made_worse(before: tuple[float, float], after: tuple[float, float],
         return True
     if not settings.undo_tipping_repairs:
         return False
-    return (max(severities({0: before}, settings).values()) < 1.0
-            <= max(severities({0: after}, settings).values()))
+    return severity(before, settings) < 1.0 <= severity(after, settings)
 
 
 def _unseen_repair_checked(make_world: MakeWorld, params: Params, movers: list[int],
@@ -414,7 +423,7 @@ def verify_and_repair(make_world: MakeWorld, params: Params, order: list[int],
         if k > 0 and not settings.moving(best[2]):
             break
         if limit is None and bound is not None:
-            worst = max(severities(best[2], settings).values(), default=0.0)
+            worst = worst_severity(best[2], settings)
             if worst < settings.fallback_severity:
                 break
             log["rounds"].append({"round": "fallback", "action": "unbounded repairs",

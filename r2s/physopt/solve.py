@@ -22,8 +22,8 @@ from r2s.physopt.observation_bound import ObservationBound, displacement_flags
 from r2s.physopt.params import Drift, Params
 from r2s.physopt.pull_back import pull_back
 from r2s.physopt.support_prop import Hidden, fell, with_prop
-from r2s.physopt.repair import (check, depenetrate_scene, judge_orders, severities,
-                                verify_and_repair, world_factory)
+from r2s.physopt.repair import (check, depenetrate_scene, judge_orders, verify_and_repair,
+                                world_factory, worst_severity)
 from r2s.physical.provenance import com_provenance, friction_provenance
 
 
@@ -163,7 +163,7 @@ def repair_bounded_then_free(make_world, params: Params, order: list[int],
     still = opt.moving(drift)
     if bound is None or not still:
         return bounded, drift
-    worst = max(severities(drift, opt).values(), default=0.0)
+    worst = worst_severity(drift, opt)
     if worst < opt.free_attempt_severity:
         log["free_attempt"] = (f"not run: the bounded repairs leave {sorted(still)} moving at "
                                f"{worst:.2f} of the judge's criterion at most")
