@@ -1,0 +1,90 @@
+"""The diagnose benchmark's decentering lens (``tangential_lens``) moves pixels as Brown's
+model says: the recorded pixel at x_d shows the ideal image at the x with
+x + offset(x) = x_d."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from r2s.synth.files import depth_png, write_png
+
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "bench_diagnose.py"
+FX, CX, CY, W, H = 100.0, 31.5, 23.5, 64, 48
+P1_P2 = (0.05, -0.08)
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("bench_diagnose_injections", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_offset_is_browns_decentering_term(bench):
+    x = np.array([[0.2, 0.1]])
+    # r^2 = 0.05: dx = 2 p1 x y + p2 (r^2 + 2 x^2), dy = p1 (r^2 + 2 y^2) + 2 p2 x y
+    expected = [2 * 0.01 * 0.02 - 0.015 * (0.05 + 0.08), 0.01 * (0.05 + 0.02) - 2 * 0.015 * 0.02]
+    assert bench.tangential_offset(x, 0.01, -0.015)[0] == pytest.approx(expected, abs=1e-12)
+    assert bench.tangential_offset(np.zeros((1, 2)), 0.01, -0.015)[0] == pytest.approx([0, 0])
+
+
+def _ideal_scene(root: Path) -> Path:
+    """Colour: red = 4 x column, green = 5 x row; depth 0.5 m + 1 mm per column; masks:
+    id = 1 + row // 8."""
+    inp = root / "input"
+    (root / "gt").mkdir(parents=True)
+    inp.mkdir()
+    (root / "gt" / "scene.json").write_text("{}")
+    cam = {"K": [[FX, 0, CX], [0, FX, CY], [0, 0, 1]], "width": W, "height": H,
+           "depth_unit_m": 0.0001}
+    (inp / "camera.json").write_text(json.dumps(cam))
+    rows, cols = np.mgrid[0:H, 0:W]
+    rgb = np.stack([4 * cols, 5 * rows, np.zeros_like(cols)], axis=-1).astype(np.uint8)
+    write_png(inp / "rgb.png", rgb)
+    write_png(inp / "depth.png", depth_png(0.5 + 0.001 * cols, 0.0001))
+    write_png(inp / "masks.png", (1 + rows // 8).astype(np.uint8))
+    return root
+
+
+def _ideal_source(u: float, v: float) -> tuple[float, float]:
+    """(column, row) of the ideal image that the recorded pixel (u, v) shows, by Newton's
+    method on x + offset(x) = x_d (independent of the script's fixed-point iteration)."""
+    p1, p2 = P1_P2
+    xd = np.array([(u - CX) / FX, (v - CY) / FX])
+    x = xd.copy()
+    for _ in range(50):
+        a, b = x
+        r2 = a * a + b * b
+        f = x + np.array([2 * p1 * a * b + p2 * (r2 + 2 * a * a),
+                          p1 * (r2 + 2 * b * b) + 2 * p2 * a * b]) - xd
+        jac = np.eye(2) + np.array([[2 * p1 * b + 6 * p2 * a, 2 * p1 * a + 2 * p2 * b],
+                                    [2 * p1 * a + 2 * p2 * b, 6 * p1 * b + 2 * p2 * a]])
+        x = x - np.linalg.solve(jac, f)
+    return FX * x[0] + CX, FX * x[1] + CY
+
+
+def test_each_image_shows_the_ideal_image_where_the_lens_sends_it(bench, tmp_path):
+    scene = _ideal_scene(tmp_path / "scene")
+    bench.add_tangential_lens(scene, P1_P2)
+    inp = scene / "input"
+    rgb = np.asarray(Image.open(inp / "rgb.png"), dtype=float)
+    depth_mm = np.asarray(Image.open(inp / "depth.png"), dtype=float) * 0.1
+    masks = np.asarray(Image.open(inp / "masks.png"))
+    for u, v in [(5, 40), (58, 6), (50, 30), (31, 23)]:
+        col, row = _ideal_source(u, v)
+        assert 0 <= col < W and 0 <= row < H
+        if (u, v) != (31, 23):
+            assert np.hypot(col - u, row - v) > 0.5  # the test points move measurably
+        assert rgb[v, u, 0] == pytest.approx(4 * col, abs=1.0)
+        assert rgb[v, u, 1] == pytest.approx(5 * row, abs=1.0)
+        assert depth_mm[v, u] == pytest.approx(500 + round(col), abs=0.01)
+        assert masks[v, u] == 1 + round(row) // 8
+    injected = json.loads((scene / "gt" / "scene.json").read_text())["injected_effects"]
+    assert injected["tangential_lens"] == {"p1": 0.05, "p2": -0.08}
