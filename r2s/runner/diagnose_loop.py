@@ -6,8 +6,9 @@ library); every decision is a library function:
 1. measure the residuals (:func:`r2s.diagnose.measure.scene_dir.measure_scene`) and rank the effects
    not yet in the model (:func:`r2s.diagnose.stats.ranking.rank`); the first one that is
    supported (:func:`r2s.diagnose.stats.ranking.supported`: BIC, prior, noise bar) and does not
-   leave a structured residual it only partly explains
-   (:func:`r2s.diagnose.stats.steps.leaves_structure`) is the step's effect;
+   leave a structured residual it only partly explains is the step's effect; where it is
+   supported only as a second thing wrong beside such a structure, the fits of that kind
+   compete without the table's shape (:func:`r2s.diagnose.stats.steps.choose_fit`);
 2. rerun the affected stages on a fresh copy of the scene with every kept effect and this
    one in the copy's model (:func:`r2s.runner.rerun.rerun_with_effects`), measure the
    residuals and the ground-truth errors there;
@@ -36,7 +37,7 @@ from r2s.diagnose.stats.ranking import NoiseBar, Round, rank, supported
 from r2s.runner.rerun import rerun_with_effects, temporary_root
 from r2s.diagnose.measure.reconstruction_jumps import reconstruction_jumps
 from r2s.diagnose.measure.scene_dir import Measured, MeasureSettings, measure_scene, scene_gt_errors
-from r2s.diagnose.stats.steps import StepJudgement, claimed_blocks, judge_step, leaves_structure
+from r2s.diagnose.stats.steps import StepJudgement, choose_fit, claimed_blocks, judge_step
 from r2s.diagnose.stats.colour_test import Z_THRESHOLD, ColourFinding, test_surface_colour
 from r2s.diagnose.stats.edge_alignment import (MIN_SHIFT_PX, MIN_TURN_DEG, EdgeFinding,
                                                test_edge_alignment)
@@ -126,18 +127,10 @@ def _total(measured: Measured) -> float:
 
 
 def _choose(rnd: Round, residuals, cfg: LoopConfig) -> tuple[Optional[EffectFit], list]:
-    """The first supported fit of the round that does not leave a structured residual it
-    only partly explains; the ones passed over, with why."""
-    skipped = []
-    for fit in rnd.fits:
-        if not supported(fit, cfg.min_evidence):
-            break
-        why = leaves_structure(fit, residuals, cfg.structure_alpha,
-                               min_evidence=cfg.min_evidence)
-        if why is None:
-            return fit, skipped
-        skipped.append({"effect": fit.effect, "why": why})
-    return None, skipped
+    """The step's effect of the round (:func:`r2s.diagnose.stats.steps.choose_fit`) and
+    the fits passed over, with why."""
+    return choose_fit(rnd.fits, residuals, lambda f: supported(f, cfg.min_evidence),
+                      cfg.structure_alpha, cfg.min_evidence, cfg.tie_tolerance)
 
 
 class _Copies:
