@@ -178,3 +178,20 @@ def prior_mesh(obj_id: int, with_ball: bool = True) -> Optional[trimesh.Trimesh]
         if i == obj_id:
             return mesh
     return None
+
+
+def pixel_grid(K: np.ndarray, width: int, height: int, step: int = 2
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every ``step``-th pixel: (u (N,), v (N,), normalised coordinates (N, 2))."""
+    v, u = np.mgrid[0:height:step, 0:width:step].astype(np.float64)
+    u, v = u.ravel(), v.ravel()
+    return u, v, np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]], axis=1)
+
+
+def depth_to_table(x: np.ndarray, world_from_camera: np.ndarray) -> np.ndarray:
+    """(N,) depth (camera z, m) at which each ray of normalised coordinates ``x`` (N, 2)
+    meets the level table, the world's z = 0 plane (negative: it does not)."""
+    cam_from_world = np.linalg.inv(world_from_camera)
+    n_c = cam_from_world[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    rays = np.hstack([x, np.ones((len(x), 1))])
+    return (n_c @ cam_from_world[:3, 3]) / (rays @ n_c)

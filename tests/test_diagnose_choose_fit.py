@@ -9,6 +9,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from helpers_diagnose import depth_to_table, pixel_grid
 from r2s.diagnose.data import Residuals, TableShapeData
 from r2s.diagnose.effects.base import EffectFit
 from r2s.diagnose.stats.steps import (block_sse, choose_fit, leaves_structure,
@@ -26,12 +27,8 @@ def decentred_table(p1: float, p2: float, seed: int = 0) -> TableShapeData:
     through the ideal K, with 0.3 mm of depth noise."""
     rng = np.random.default_rng(seed)
     world_from_camera = look_at([0.5, -0.35, 0.45], [0.0, 0.0, 0.0])
-    cam_from_world = np.linalg.inv(world_from_camera)
-    n_c = cam_from_world[:3, :3] @ np.array([0.0, 0.0, 1.0])
-    p_c = cam_from_world[:3, 3]
-    v, u = np.mgrid[0:H:2, 0:W:2].astype(np.float64)
-    x = np.stack([(u.ravel() - K[0, 2]) / K[0, 0], (v.ravel() - K[1, 2]) / K[1, 1]], axis=1)
-    z = (n_c @ p_c) / (np.hstack([x, np.ones((len(x), 1))]) @ n_c)
+    _, _, x = pixel_grid(K, W, H)
+    z = depth_to_table(x, world_from_camera)
     world = (np.hstack([x, np.ones((len(x), 1))]) * z[:, None]) @ world_from_camera[:3, :3].T
     world += world_from_camera[:3, 3]
     keep = (z > 0) & (np.abs(world[:, 0]) < 0.3) & (np.abs(world[:, 1]) < 0.3)

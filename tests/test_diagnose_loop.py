@@ -14,7 +14,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from helpers_diagnose import write_scene
+from helpers_diagnose import depth_to_table, pixel_grid, write_scene
 from r2s.diagnose.stats.blocks import blocks_of
 from r2s.diagnose.data import (RegistrationData, Residuals, ScaleObs, SupportData,
                                TableShapeData)
@@ -44,16 +44,11 @@ def _table_points(k1: float = 0.0, row_error_m: float = 0.0, noise_m: float = 0.
     right edge) back-projects them through its ideal K."""
     rng = np.random.default_rng(seed)
     world_from_camera = look_at([0.5, -0.35, 0.42], [0.0, 0.0, 0.03])
-    cam_from_world = np.linalg.inv(world_from_camera)
-    n_c = cam_from_world[:3, :3] @ np.array([0.0, 0.0, 1.0])
-    p_c = cam_from_world[:3, 3]
-    v, u = np.mgrid[0:H:2, 0:W:2].astype(np.float64)
-    xd = np.stack([(u.ravel() - K[0, 2]) / K[0, 0], (v.ravel() - K[1, 2]) / K[1, 1]], axis=1)
+    u, v, xd = pixel_grid(K, W, H)
     x = undistort_normalised(xd, k1)  # the ideal ray each recorded pixel saw
-    rays = np.hstack([x, np.ones((len(x), 1))])
-    z = (n_c @ p_c) / (rays @ n_c)
-    rows = (v.ravel() - (H - 1) / 2) / ((H - 1) / 2)
-    cols = (u.ravel() - (W - 1) / 2) / ((W - 1) / 2)
+    z = depth_to_table(x, world_from_camera)
+    rows = (v - (H - 1) / 2) / ((H - 1) / 2)
+    cols = (u - (W - 1) / 2) / ((W - 1) / 2)
     z = z + row_error_m * rows ** 2 + column_error_m * cols + rng.normal(0.0, noise_m, len(z))
     ok = z > 0
     # back-projected through the ideal K at the recorded (distorted) pixel

@@ -10,6 +10,8 @@ import pytest
 from scipy.stats import chi2
 from scipy.stats import f as f_dist
 
+from helpers_diagnose import depth_to_table, pixel_grid
+
 from r2s.diagnose.data import RegistrationData, Residuals, ScaleObs, TableShapeData
 from r2s.diagnose.effects import get_effect
 from r2s.diagnose.stats.noise import mixed_sampling_bar
@@ -35,17 +37,13 @@ def table_points(offset_m: float = 0.0, scale: float = 1.0, k1: float = 0.0,
     back-projects them through the ideal K."""
     rng = np.random.default_rng(seed)
     world_from_camera = look_at([0.5, -0.35, 0.45], [0.0, 0.0, 0.0])
-    cam_from_world = np.linalg.inv(world_from_camera)
-    n_c = cam_from_world[:3, :3] @ np.array([0.0, 0.0, 1.0])
-    p_c = cam_from_world[:3, 3]
-    v, u = np.mgrid[0:H:2, 0:W:2].astype(np.float64)
-    xd = np.stack([(u.ravel() - K[0, 2]) / K[0, 0], (v.ravel() - K[1, 2]) / K[1, 1]], axis=1)
+    _, v, xd = pixel_grid(K, W, H)
     x = undistort_normalised(xd, k1)
     rays = np.hstack([x, np.ones((len(x), 1))])
-    z = (n_c @ p_c) / (rays @ n_c)
+    z = depth_to_table(x, world_from_camera)
     world = (rays * z[:, None]) @ world_from_camera[:3, :3].T + world_from_camera[:3, 3]
     on_table = (z > 0) & (np.abs(world[:, 0]) < TABLE_HALF_M) & (np.abs(world[:, 1]) < TABLE_HALF_M)
-    rows = (v.ravel() - (H - 1) / 2) / ((H - 1) / 2)
+    rows = (v - (H - 1) / 2) / ((H - 1) / 2)
     z = scale * z + offset_m + row_error_m * rows ** 2 + rng.normal(0.0, noise_m, len(z))
     ok = on_table & (z > 0)
     return np.hstack([xd * z[:, None], z[:, None]])[ok]
