@@ -81,6 +81,7 @@ CASES: dict[str, tuple[dict[str, str], tuple[str, ...]]] = {
     "tangential_lens": ({}, ()),
     "scale+tangential": ({"depth_scale": "1.04"}, ("depth_scale",)),
     "offset+tangential": ({"depth_offset_m": "0.01"}, ("depth_offset",)),
+    "lens+tangential": ({"lens_k1": "-0.12"}, ("lens_distortion",)),
     "depth_unit": ({"depth_scale": "2.0"}, ("depth_scale",)),
     "lens+scale+camera": ({"lens_k1": "-0.12", "depth_scale": "1.04", "camera_rotation_deg": "3"},
                           ("lens_distortion", "depth_scale", "camera_rotation")),
@@ -122,7 +123,7 @@ def base_case(case: str) -> str:
 UNCATALOGUED = {"row_depth", "principal_point_error", "disparity_bias", "dark_depth",
                 "depth_shift", "radial_depth", "column_depth", "depth_rotation",
                 "tangential_lens"}
-MIXED = {"scale+radial", "scale+tangential", "offset+tangential"}
+MIXED = {"scale+radial", "scale+tangential", "offset+tangential", "lens+tangential"}
 """Cases with one catalogued effect (named and sized) and one outside the catalogue (its
 row also says whether structure was reported as unexplained)."""
 ROW_DEPTH_ERROR_M = 0.006
@@ -319,7 +320,8 @@ off the sensor's axis, in the colour, depth and mask images together; camera.jso
 ideal K. At 320 x 240 (fx 277 px) a pixel half way to the top-left corner moves 0.9 px and the
 corners 3.5-7.7 px, where ``lens_k1`` -0.12 moves them 12 px: the catalogue's lens is
 radial only. ``scale+tangential`` adds a 4 % depth scale (named and sized) to it,
-``offset+tangential`` a 1 cm depth offset."""
+``offset+tangential`` a 1 cm depth offset, ``lens+tangential`` the radial k1 -0.12 (the
+decentering applied after it: a real lens has both)."""
 
 
 def tangential_offset(x: np.ndarray, p1: float, p2: float) -> np.ndarray:
@@ -373,7 +375,7 @@ def add_tangential_lens(scene: Path, p1_p2: tuple[float, float] = TANGENTIAL_P1_
 
 SCRIPT_INJECT = {"column_depth": add_column_depth_error, "depth_rotation": add_depth_rotation,
                  "tangential_lens": add_tangential_lens, "scale+tangential": add_tangential_lens,
-                 "offset+tangential": add_tangential_lens,
+                 "offset+tangential": add_tangential_lens, "lens+tangential": add_tangential_lens,
                  "row_depth": add_row_depth_error, "radial_depth": add_radial_depth_error,
                  "focal_error": add_focal_error,
                  "principal_point_error": add_principal_point_error,
