@@ -317,9 +317,9 @@ def add_depth_rotation(scene: Path, angle_deg: float = DEPTH_ROTATION_DEG) -> No
 TANGENTIAL_P1_P2 = (0.01, -0.015)
 """``tangential_lens``: Brown's decentering distortion (p1, p2) of a lens mounted a little
 off the sensor's axis, in the colour, depth and mask images together; camera.json keeps the
-ideal K. At 320 x 240 (fx 277 px) a pixel half way to the top-left corner moves 0.9 px and the
-corners 3.5-7.7 px, where ``lens_k1`` -0.12 moves them 12 px: the catalogue's lens is
-radial only. ``scale+tangential`` adds a 4 % depth scale (named and sized) to it,
+ideal K. At 320 x 240 (fx 277 px) a pixel half way to the top-left corner moves 0.9 px
+and the corners 3.5-7.7 px, where ``lens_k1`` -0.12 moves them 12 px: the catalogue's lens
+is radial only. ``scale+tangential`` adds a 4 % depth scale (named and sized) to it,
 ``offset+tangential`` a 1 cm depth offset, ``lens+tangential`` the radial k1 -0.12 (the
 decentering applied after it: a real lens has both)."""
 
@@ -341,7 +341,7 @@ def add_tangential_lens(scene: Path, p1_p2: tuple[float, float] = TANGENTIAL_P1_
     from PIL import Image
     from scipy import ndimage
 
-    from r2s.synth.files import depth_png, write_png
+    from r2s.synth.files import write_png
 
     paths = ScenePaths(scene)
     cam = json.loads((paths.input / "camera.json").read_text())
@@ -366,10 +366,7 @@ def add_tangential_lens(scene: Path, p1_p2: tuple[float, float] = TANGENTIAL_P1_
     masks_img = np.asarray(Image.open(paths.masks))
     masks = np.where(inside, masks_img[r_near, c_near], 0).astype(masks_img.dtype)
     write_png(paths.masks, masks)
-    unit = float(cam.get("depth_unit_m", 0.001))
-    raw = np.asarray(Image.open(paths.depth_png), dtype=np.float64)
-    depth = np.where(raw > 0, raw * unit, np.nan)
-    write_png(paths.depth_png, depth_png(np.where(inside, depth[r_near, c_near], np.nan), unit))
+    _rewrite_depth(scene, lambda depth: np.where(inside, depth[r_near, c_near], np.nan))
     _record_injected(scene, "tangential_lens", {"p1": p1_p2[0], "p2": p1_p2[1]})
 
 

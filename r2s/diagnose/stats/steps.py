@@ -151,13 +151,12 @@ def choose_fit(fits: Sequence[EffectFit], before: Residuals,
     for fit in fits:
         if not is_supported(fit):
             break
-        if leaves_structure(fit, before, alpha) is None:
+        why = leaves_structure(fit, before, alpha)
+        if why is None:
             if not second:
                 return fit, skipped
-            continue
-        why = leaves_structure(fit, before, alpha, min_evidence=min_evidence)
-        if why is None:
-            second.append(fit)
+        elif score_without_table_shape(fit, before) < -min_evidence:
+            second.append(fit)  # supported without the table: a second thing wrong
         elif not second:
             skipped.append({"effect": fit.effect, "why": why})
     if not second:
