@@ -324,23 +324,16 @@ is radial only. ``scale+tangential`` adds a 4 % depth scale (named and sized) to
 decentering applied after it: a real lens has both)."""
 
 
-def tangential_offset(x: np.ndarray, p1: float, p2: float) -> np.ndarray:
-    """(N, 2) decentering displacement of normalised image points ``x`` (N, 2):
-    (2 p1 x y + p2 (r^2 + 2 x^2), p1 (r^2 + 2 y^2) + 2 p2 x y)."""
-    u, v = x[:, 0], x[:, 1]
-    r2 = u * u + v * v
-    return np.stack([2 * p1 * u * v + p2 * (r2 + 2 * u * u),
-                     p1 * (r2 + 2 * v * v) + 2 * p2 * u * v], axis=1)
-
-
 def add_tangential_lens(scene: Path, p1_p2: tuple[float, float] = TANGENTIAL_P1_P2) -> None:
     """Inject a decentering lens distortion into input/rgb.png, depth.png and masks.png
     (recorded in gt/ only): the recorded pixel at distorted x_d shows the ideal image at
-    the x with x + offset(x) = x_d (fixed-point iteration), bilinear for colour and nearest
+    the x with x + offset(x) = x_d (:func:`r2s.geometry.lens.undistort_decentred`),
+    bilinear for colour and nearest
     for depth and masks; pixels whose source is outside the image read nothing."""
     from PIL import Image
     from scipy import ndimage
 
+    from r2s.geometry.lens import undistort_decentred
     from r2s.synth.files import write_png
 
     paths = ScenePaths(scene)
@@ -349,9 +342,7 @@ def add_tangential_lens(scene: Path, p1_p2: tuple[float, float] = TANGENTIAL_P1_
     h, w = int(cam["height"]), int(cam["width"])
     v, u = np.mgrid[0:h, 0:w].astype(np.float64)
     xd = np.stack([(u.ravel() - K[0, 2]) / K[0, 0], (v.ravel() - K[1, 2]) / K[1, 1]], axis=1)
-    x = xd.copy()
-    for _ in range(20):
-        x = xd - tangential_offset(x, *p1_p2)
+    x = undistort_decentred(xd, 0.0, *p1_p2, iterations=20)
     rows = (K[1, 1] * x[:, 1] + K[1, 2]).reshape(h, w)
     cols = (K[0, 0] * x[:, 0] + K[0, 2]).reshape(h, w)
     inside = (rows > -0.5) & (rows < h - 0.5) & (cols > -0.5) & (cols < w - 0.5)

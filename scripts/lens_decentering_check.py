@@ -30,28 +30,16 @@ from r2s.diagnose.data import TableShapeData  # noqa: E402
 from r2s.diagnose.measure.scene_dir import measure_scene  # noqa: E402
 from r2s.diagnose.stats.blocks import table_shape_block  # noqa: E402
 from r2s.diagnose.stats.structure_test import test_structure  # noqa: E402
+from r2s.geometry.lens import undistort_decentred  # noqa: E402
 from r2s.stages.diagnose import Options, settings_of  # noqa: E402
-
-
-def undistort(xd: np.ndarray, k1: float, p1: float, p2: float, iterations: int = 15
-              ) -> np.ndarray:
-    """(N, 2) ideal normalised coordinates x whose distortion x (1 + k1 r^2) + offset(x)
-    is ``xd`` (N, 2), by fixed-point iteration."""
-    x = xd.copy()
-    for _ in range(iterations):
-        a, b = x[:, 0], x[:, 1]
-        r2 = a * a + b * b
-        offset = np.stack([2 * p1 * a * b + p2 * (r2 + 2 * a * a),
-                           p1 * (r2 + 2 * b * b) + 2 * p2 * a * b], axis=1)
-        x = (xd - offset) / (1.0 + k1 * r2)[:, None]
-    return x
 
 
 def undistorted(shape: TableShapeData, k1: float, p1: float, p2: float) -> TableShapeData:
     """The table points back-projected through the undistorted rays (depths kept)."""
     p = shape.points_camera
     z = p[:, 2:3]
-    return replace(shape, points_camera=np.hstack([undistort(p[:, :2] / z, k1, p1, p2) * z, z]))
+    x = undistort_decentred(p[:, :2] / z, k1, p1, p2, iterations=15)
+    return replace(shape, points_camera=np.hstack([x * z, z]))
 
 
 def check(scene: Path) -> str:

@@ -7,6 +7,11 @@ Normalised image coordinates ``x = K^-1 [u, v, 1]`` (ideal pinhole, z = 1) are d
 so ``k1 < 0`` is barrel distortion (the periphery is pulled towards the principal point).
 A depth image of a distorted camera stores at pixel ``x_d`` the camera-z depth of the point
 seen along the ideal ray ``x``; the depth value itself is not changed, only where it lands.
+
+Brown's decentering (tangential) terms p1, p2 of a lens mounted off the sensor's axis are
+here too (:func:`decentering_offset`, :func:`undistort_decentred`). The diagnose catalogue's
+lens does not fit them (docs/diagnose.md, section 10, ``lens+tangential``); the benchmark
+injects them and measures what fitting them would do.
 """
 
 from __future__ import annotations
@@ -29,6 +34,28 @@ def undistort_normalised(xd: np.ndarray, k1: float, k2: float = 0.0,
     x = xd.copy()
     for _ in range(iterations):
         x = xd / radial_factor(np.sum(x * x, axis=-1), k1, k2)[..., None]
+    return x
+
+
+def decentering_offset(x: np.ndarray, p1: float, p2: float) -> np.ndarray:
+    """(N, 2) decentering displacement of normalised coordinates ``x`` (N, 2):
+    (2 p1 x y + p2 (r^2 + 2 x^2), p1 (r^2 + 2 y^2) + 2 p2 x y)."""
+    x = np.asarray(x, dtype=np.float64)
+    u, v = x[:, 0], x[:, 1]
+    r2 = u * u + v * v
+    return np.stack([2 * p1 * u * v + p2 * (r2 + 2 * u * u),
+                     p1 * (r2 + 2 * v * v) + 2 * p2 * u * v], axis=1)
+
+
+def undistort_decentred(xd: np.ndarray, k1: float, p1: float, p2: float,
+                        iterations: int = 15) -> np.ndarray:
+    """(N, 2) ideal normalised coordinates x whose distortion
+    ``x (1 + k1 r^2) + decentering_offset(x)`` is ``xd`` (N, 2), by fixed-point iteration."""
+    xd = np.asarray(xd, dtype=np.float64)
+    x = xd.copy()
+    for _ in range(iterations):
+        factor = radial_factor(np.sum(x * x, axis=-1), k1)
+        x = (xd - decentering_offset(x, p1, p2)) / factor[:, None]
     return x
 
 
