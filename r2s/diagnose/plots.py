@@ -228,8 +228,9 @@ def edge_figure(finding, title: str) -> bytes:
 
 def colour_figure(finding, title: str) -> bytes:
     """PNG bytes of a colour-dependent depth error (:class:`r2s.diagnose.stats.colour_test.
-    ColourFinding`): each registered prior's patch residuals against their grey level, with
-    its fitted line."""
+    ColourFinding`): per object, its patch residuals against their grey level (the
+    registered priors' test) or its depth's fine detail against the grey's, binned (the
+    texture test), with its fitted line."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -246,8 +247,16 @@ def colour_figure(finding, title: str) -> bytes:
             xs = np.array([g.min(), g.max()])
             ax.plot(xs, np.polyval(coef, xs), "-", color=line.get_color(), lw=1.5)
     ax.axhline(0, color="k", lw=0.5)
-    ax.set_xlabel("grey level of the surface (0 black, 1 white)")
-    ax.set_ylabel("observed minus prior depth, 6 px patches (mm)")
+    if finding.source == "texture":
+        lo, hi = ax.get_xlim()
+        xs = np.array([lo, hi])
+        ax.plot(xs, finding.slope_mm * xs, "k--", lw=1,
+                label=f"scene: {finding.slope_mm:+.1f} mm per unit grey")
+        ax.set_xlabel("grey level's detail: what a quadratic over its 8 px patch leaves")
+        ax.set_ylabel("depth's detail in the same patches, binned by grey (mm)")
+    else:
+        ax.set_xlabel("grey level of the surface (0 black, 1 white)")
+        ax.set_ylabel("observed minus prior depth, 6 px patches (mm)")
     ax.set_title(f"z = {finding.z:.1f} (reported at |z| >= {finding.z_threshold:.1f})",
                  fontsize=9)
     ax.legend(fontsize=7)

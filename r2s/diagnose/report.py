@@ -33,7 +33,9 @@ class ReportInput:
     residuals before, as the last kept fit predicts them, measured after the last kept
     rerun; structure_final / unexplained : summaries of the final structure test;
     colour_final : of the final colour test (r2s.diagnose.stats.colour_test); edge_final :
-    of the depth-to-colour registration test (r2s.diagnose.stats.edge_alignment).
+    of the depth-to-colour registration test (r2s.diagnose.stats.edge_alignment);
+    texture_final : of the colour test on the depth's fine detail
+    (r2s.diagnose.stats.texture_depth).
     """
 
     scene: str
@@ -55,6 +57,7 @@ class ReportInput:
     gravity: Optional[dict] = None
     colour_final: Optional[dict] = None
     edge_final: Optional[dict] = None
+    texture_final: Optional[dict] = None
 
 
 def build_report(r: ReportInput) -> dict[str, Any]:
@@ -85,6 +88,7 @@ def build_report(r: ReportInput) -> dict[str, Any]:
         "structure_after": structure(r.after) if r.after is not None else None,
         "structure_test": r.structure_final,
         "colour_test": r.colour_final,
+        "texture_test": r.texture_final,
         "edge_test": r.edge_final,
         "unexplained": r.unexplained,
         "gravity": r.gravity,

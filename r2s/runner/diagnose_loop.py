@@ -39,6 +39,7 @@ from r2s.diagnose.measure.reconstruction_jumps import reconstruction_jumps
 from r2s.diagnose.measure.scene_dir import Measured, MeasureSettings, measure_scene, scene_gt_errors
 from r2s.diagnose.stats.steps import StepJudgement, choose_fit, claimed_blocks, judge_step
 from r2s.diagnose.stats.colour_test import Z_THRESHOLD, ColourFinding, test_surface_colour
+from r2s.diagnose.stats.texture_depth import Z_THRESHOLD as TEXTURE_Z, test_texture_depth
 from r2s.diagnose.stats.edge_alignment import (MIN_SHIFT_PX, MIN_TURN_DEG, EdgeFinding,
                                                test_edge_alignment)
 from r2s.diagnose.stats.structure_test import StructureFinding, test_structure
@@ -59,6 +60,7 @@ class LoopConfig:
     rerun_stages: Optional[list] = None
     structure_alpha: float = 1e-3
     colour_z: float = Z_THRESHOLD
+    texture_z: float = TEXTURE_Z
     edge_shift_px: float = MIN_SHIFT_PX
     edge_turn_deg: float = MIN_TURN_DEG
     joint_refit: bool = True
@@ -109,6 +111,7 @@ class LoopResult:
     copy: Optional[Path] = None
     colour_final: Optional[ColourFinding] = None
     edge_final: Optional[EdgeFinding] = None
+    texture_final: Optional[ColourFinding] = None
 
 
 GT_HEADLINE = ("state_centroid_error_mm", "state_centroid_error_median_mm",
@@ -333,10 +336,12 @@ def run_loop(root: Path, settings: MeasureSettings, cfg: LoopConfig,
                     copies.keep(copy)
                 else:
                     copies.drop(copy)
-        unexplained, final_structure, colour, edges = _final_tests(current.residuals, cfg)
+        unexplained, final_structure, colour, texture, edges = _final_tests(
+            current.residuals, cfg)
         result = LoopResult(before, current, gt_before, gt_now if kept else None, kept, steps,
                             rounds, stages if kept else [], unexplained, final_structure, notes,
-                            copies.current, colour_final=colour, edge_final=edges)
+                            copies.current, colour_final=colour, edge_final=edges,
+                            texture_final=texture)
     except BaseException:
         copies.cleanup()
         raise
@@ -345,14 +350,19 @@ def run_loop(root: Path, settings: MeasureSettings, cfg: LoopConfig,
 
 
 def _final_tests(res: Residuals, cfg: LoopConfig) -> tuple:
-    """(unexplained, structure, colour, edges) after the loop: the table's structure test;
-    when the table is flat, is the objects' depth error colour's; and else, do the depth
-    image and the masks not line up? ``unexplained`` is the first structured finding."""
+    """(unexplained, structure, colour, texture, edges) after the loop: the table's
+    structure test; when the table is flat, is the objects' depth error colour's (against
+    the registered priors, then in the depth's fine detail against the print's); and else,
+    do the depth image and the masks not line up? ``unexplained`` is the first structured
+    finding."""
     structure = test_structure(res, cfg.structure_alpha)
     colour = test_surface_colour(res, cfg.colour_z)
+    dm = res.depth_map
+    texture = (test_texture_depth(dm.depth_m, dm.grey, dm.masks, cfg.texture_z)
+               if dm is not None and dm.masks is not None else None)
     edges = _edge_test(res, cfg.edge_shift_px, cfg.edge_turn_deg)
-    found = [f for f in (structure, colour, edges) if f is not None and f.structured]
-    return (found[0] if found else None), structure, colour, edges
+    found = [f for f in (structure, colour, texture, edges) if f is not None and f.structured]
+    return (found[0] if found else None), structure, colour, texture, edges
 
 
 def _edge_test(res: Residuals, min_shift_px: float, min_turn_deg: float

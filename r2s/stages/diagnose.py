@@ -27,6 +27,7 @@ from r2s.diagnose.effects import all_effects
 from r2s.diagnose.stats.camera_or_table import camera_or_table
 from r2s.diagnose.plots import colour_figure, edge_figure, residual_figure, structure_figure
 from r2s.diagnose.stats.colour_test import Z_THRESHOLD as COLOUR_Z, ColourFinding
+from r2s.diagnose.stats.texture_depth import Z_THRESHOLD as TEXTURE_Z
 from r2s.diagnose.stats.edge_alignment import (MIN_SHIFT_PX as EDGE_SHIFT_PX,
                                                MIN_TURN_DEG as EDGE_TURN_DEG, EdgeFinding)
 from r2s.diagnose.stats.ranking import NoiseBar
@@ -82,6 +83,11 @@ class Options(StageOptions):
                                                    "registered priors' residual gives |z| at "
                                                    "least this (diagnose/stats/colour_test.py; "
                                                    "clean scenes reach 4.8).")
+    texture_z: float = Field(TEXTURE_Z, gt=0, description="A depth error that depends on the "
+                             "surface's grey level is reported when the objects' depth, in its "
+                             "detail within 8 px patches, follows their print's grey level "
+                             "with |z| at least this (diagnose/stats/texture_depth.py; scenes "
+                             "without one reach 3.2).")
     edge_shift_px: float = Field(EDGE_SHIFT_PX, gt=0, description="The depth image's edges "
                                  "lying this many pixels or more off the masks' edges (most "
                                  "objects agreeing) are reported as a depth-to-colour "
@@ -223,6 +229,7 @@ def loop_config(options: Options) -> LoopConfig:
                if options.noise_draws > 0 else None),
         rerun=options.rerun, rerun_stages=options.rerun_stages or None,
         structure_alpha=options.structure_alpha, colour_z=options.colour_z,
+        texture_z=options.texture_z,
         edge_shift_px=options.edge_shift_px, edge_turn_deg=options.edge_turn_deg,
         joint_refit=options.joint_refit, jump_tolerance_m=options.jump_tolerance_m,
         decisive_fall=options.decisive_fall,
@@ -254,6 +261,7 @@ def run(ctx: StageContext) -> dict:
         applied=bool(options.apply and kept), model=new_model, notes=tuple(notes),
         structure_final=loop.structure_final.summary() if loop.structure_final else None,
         colour_final=loop.colour_final.summary() if loop.colour_final else None,
+        texture_final=loop.texture_final.summary() if loop.texture_final else None,
         edge_final=loop.edge_final.summary() if loop.edge_final else None,
         unexplained=loop.unexplained.summary() if loop.unexplained else None,
         gravity=camera_or_table(loop.rounds[0] if loop.rounds else None, kept,

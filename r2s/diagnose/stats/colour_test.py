@@ -53,7 +53,10 @@ class ColourFinding:
 
     z : the scene's statistic; slopes_mm : per object id, residual per unit grey (mm; a
     negative slope: darker reads farther); z_by_object : their t statistics; points : per
-    object, (grey, residual mm) of its patches, for the picture.
+    object, (grey, residual mm) of its patches, for the picture. source : "priors" (this
+    module) or "texture" (:mod:`r2s.diagnose.stats.texture_depth`: the depth's fine detail
+    against the print's, no prior needed); scene_slope_mm : the scene's one slope where the
+    test fits one (texture), else None and the objects' median is reported.
     """
 
     z: float
@@ -62,6 +65,8 @@ class ColourFinding:
     slopes_mm: dict = field(default_factory=dict)
     z_by_object: dict = field(default_factory=dict)
     points: dict = field(default_factory=dict, repr=False)
+    source: str = "priors"
+    scene_slope_mm: Optional[float] = None
 
     @property
     def p_value(self) -> float:
@@ -69,26 +74,33 @@ class ColourFinding:
 
     @property
     def slope_mm(self) -> float:
-        """The objects' median slope (mm per unit grey)."""
+        """The scene's slope, else the objects' median slope (mm per unit grey)."""
+        if self.scene_slope_mm is not None:
+            return float(self.scene_slope_mm)
         return float(np.median(list(self.slopes_mm.values()))) if self.slopes_mm else 0.0
 
     @property
     def pattern(self) -> str:
-        if not self.slopes_mm:
+        if not self.slopes_mm and self.scene_slope_mm is None:
             return "no pattern"
         side = "darker surfaces read farther" if self.slope_mm < 0 else \
             "darker surfaces read nearer"
+        if self.source == "texture":
+            return (f"the objects' depth follows their printed texture: {side}, by "
+                    f"{abs(self.slope_mm):.1f} mm from white to black (the fine detail of depth "
+                    f"against grey's within small patches, {len(self.slopes_mm)} objects; "
+                    f"z = {self.z:.1f})")
         return (f"the registered priors' depth residual depends on the surface's grey level: "
                 f"{side}, by {abs(self.slope_mm):.1f} mm from white to black (median over "
                 f"{len(self.slopes_mm)} objects; z = {self.z:.1f})")
 
     def summary(self) -> dict:
-        return {"test": "surface colour", "chi2": self.z ** 2, "dof": 1,
+        return {"test": "surface colour", "source": self.source, "chi2": self.z ** 2, "dof": 1,
                 "p_value": self.p_value, "alpha": float(2.0 * norm.sf(self.z_threshold)),
                 "structured": self.structured, "z": self.z, "z_threshold": self.z_threshold,
                 "slopes_mm": {str(k): v for k, v in self.slopes_mm.items()},
                 "z_by_object": {str(k): v for k, v in self.z_by_object.items()},
-                "best_feature": "grey", "pattern": self.pattern}
+                "slope_mm": self.slope_mm, "best_feature": "grey", "pattern": self.pattern}
 
 
 def _patch_means(rows: np.ndarray, cols: np.ndarray, values: list[np.ndarray], patch_px: int
