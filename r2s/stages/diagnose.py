@@ -87,7 +87,7 @@ class Options(StageOptions):
                              "surface's grey level is reported when the objects' depth, in its "
                              "detail within 8 px patches, follows their print's grey level "
                              "with |z| at least this (diagnose/stats/texture_depth.py; scenes "
-                             "without one reach 3.2).")
+                             "without one reach 3.8).")
     edge_shift_px: float = Field(EDGE_SHIFT_PX, gt=0, description="The depth image's edges "
                                  "lying this many pixels or more off the masks' edges (most "
                                  "objects agreeing) are reported as a depth-to-colour "
