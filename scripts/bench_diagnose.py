@@ -211,15 +211,22 @@ def add_disparity_bias(scene: Path, error_at_1m: float = DISPARITY_ERROR_AT_1M) 
                      {"error_at_1m_m": error_at_1m, "inverse_depth_offset_per_m": c})
 
 
+def dark_depth_bias_m(rgb: np.ndarray, error_m: float) -> np.ndarray:
+    """(H, W) how much farther each pixel of the (H, W, 3) 0..255 colour image reads:
+    ``error_m * (1 - luminance)``, the luminance Rec. 601, 0..1."""
+    rgb = np.asarray(rgb, dtype=np.float64)
+    luminance = (0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]) / 255.0
+    return error_m * (1.0 - luminance)
+
+
 def add_dark_depth_bias(scene: Path, error_m: float = DARK_DEPTH_ERROR_M) -> None:
     """Inject a depth error that depends on the surface's colour into input/depth.png
-    (recorded in gt/ only): each pixel reads ``error_m * (1 - luminance)`` too far, the
-    luminance (Rec. 601, 0..1) of input/rgb.png there."""
+    (recorded in gt/ only): each pixel reads :func:`dark_depth_bias_m` of input/rgb.png
+    too far."""
     from PIL import Image
 
-    rgb = np.asarray(Image.open(ScenePaths(scene).rgb).convert("RGB"), dtype=np.float64)
-    luminance = (0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]) / 255.0
-    _rewrite_depth(scene, lambda depth: depth + error_m * (1.0 - luminance))
+    bias = dark_depth_bias_m(Image.open(ScenePaths(scene).rgb).convert("RGB"), error_m)
+    _rewrite_depth(scene, lambda depth: depth + bias)
     _record_injected(scene, "dark_depth", {"error_black_m": error_m})
 
 

@@ -23,7 +23,9 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "scripts"))
 
+from bench_diagnose import dark_depth_bias_m  # noqa: E402
 from r2s.diagnose.measure.observe import grey_image  # noqa: E402
 from r2s.diagnose.stats.texture_depth import test_texture_depth  # noqa: E402
 from r2s.io.input_scene import load_camera, load_input  # noqa: E402
@@ -31,16 +33,14 @@ from r2s.io.input_scene import load_camera, load_input  # noqa: E402
 
 def with_dark_error(depth_m: np.ndarray, rgb: np.ndarray, error_black_m: float,
                     unit_m: float) -> np.ndarray:
-    """(H, W) depth m with ``error_black_m`` x (1 - luminance) added where it reads,
-    rounded to ``unit_m``."""
+    """(H, W) depth m with the benchmark's colour error (``bench_diagnose.
+    dark_depth_bias_m``) added where it reads, rounded to ``unit_m``."""
     if error_black_m == 0:
         return depth_m
-    rgb = np.asarray(rgb, dtype=np.float64)
-    luminance = (0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]) / 255.0
+    bias = dark_depth_bias_m(rgb, error_black_m)
     valid = np.isfinite(depth_m) & (depth_m > 0)
     out = np.array(depth_m, dtype=np.float64)
-    out[valid] = np.round((out[valid] + error_black_m * (1.0 - luminance[valid])) / unit_m) \
-        * unit_m
+    out[valid] = np.round((out[valid] + bias[valid]) / unit_m) * unit_m
     return out
 
 
