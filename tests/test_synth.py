@@ -292,6 +292,37 @@ def test_prior_pose_error_is_about_the_centre() -> None:
     assert 10 <= angle <= 20 and 0.01 <= shift <= 0.04
 
 
+def test_a_rolled_camera_turns_about_its_line_of_sight_only() -> None:
+    target = np.array([0.02, -0.01, 0.03])
+    level = camera.orbit_pose(target, 35.0, 120.0, 0.7)
+    rolled = camera.orbit_pose(target, 35.0, 120.0, 0.7, roll_deg=30.0)
+    np.testing.assert_allclose(rolled[:3, 3], level[:3, 3], atol=1e-12)  # same eye
+    np.testing.assert_allclose(rolled[:3, 2], level[:3, 2], atol=1e-12)  # same line of sight
+    # the image's x axis turned 30 deg towards its y axis (down in the image)
+    assert rolled[:3, 0] @ level[:3, 0] == pytest.approx(np.cos(np.radians(30.0)), abs=1e-12)
+    assert rolled[:3, 0] @ level[:3, 1] == pytest.approx(np.sin(np.radians(30.0)), abs=1e-12)
+    assert abs(level[:3, 0] @ [0.0, 0.0, 1.0]) < 1e-12  # level: x is horizontal
+
+
+def test_a_rolled_scene_is_rendered_as_its_camera_sees_it(tmp_path: Path, clean: Path) -> None:
+    scene = tmp_path / "rolled"
+    synthesize(scene, SynthOptions(seed=3, noise=0.0, camera_roll_deg=(35.0, 35.0), **SMALL))
+    gt = _gt(scene)
+    assert gt["camera"]["roll_deg"] == 35.0
+    x_axis = np.asarray(gt["camera"]["world_from_camera"])[:3, 0]
+    down = np.asarray(gt["camera"]["world_from_camera"])[:3, 1]
+    # the image's x axis dips by asin(sin(roll) * |vertical part of the image's y axis|)
+    assert abs(x_axis[2]) == pytest.approx(np.sin(np.radians(35.0)) * np.hypot(
+        abs(down[2]), abs(x_axis[2])), abs=1e-9)
+    pixels, observed = _mask_pixels(scene, 150)
+    reference = _raycast_depth(scene, pixels)
+    ok = np.isfinite(reference)
+    assert ok.mean() > 0.95
+    assert np.median(np.abs(observed[ok] - reference[ok])) < 0.002
+    # a level scene records no roll (its files as before the option)
+    assert "roll_deg" not in _gt(clean)["camera"]
+
+
 @pytest.mark.parametrize("kwargs, words", [
     (dict(count=0), "count"), (dict(count=16), "count"), (dict(objects="lego"), "lego"),
     (dict(effects={"gravity": "2"}), "unknown effect"),

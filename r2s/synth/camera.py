@@ -38,25 +38,30 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0,
 
 
 def orbit_pose(target: np.ndarray, elevation_deg: float, azimuth_deg: float,
-               distance_m: float) -> np.ndarray:
+               distance_m: float, roll_deg: float = 0.0) -> np.ndarray:
     """world_from_camera of a camera on a sphere around ``target`` looking at it.
 
-    ``elevation_deg`` is the angle of the line of sight below the horizontal.
+    ``elevation_deg`` is the angle of the line of sight below the horizontal; ``roll_deg``
+    turns the camera about its line of sight (positive: the image's content turns
+    clockwise, x towards y); 0 keeps the image's x axis level.
     """
     el, az = np.radians(elevation_deg), np.radians(azimuth_deg)
     offset = distance_m * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az),
                                     np.sin(el)])
-    return look_at(np.asarray(target, dtype=float) + offset, target)
+    pose = look_at(np.asarray(target, dtype=float) + offset, target)
+    if roll_deg:
+        pose[:3, :3] = pose[:3, :3] @ Rotation.from_euler("z", roll_deg, degrees=True).as_matrix()
+    return pose
 
 
 def fit_distance(points: np.ndarray, target: np.ndarray, elevation_deg: float,
                  azimuth_deg: float, K: np.ndarray, width: int, height: int,
-                 margin_px: float) -> float:
+                 margin_px: float, roll_deg: float = 0.0) -> float:
     """Smallest camera distance at which every point projects ``margin_px`` inside the image."""
     lo, hi = 0.05, 5.0
     for _ in range(40):
         mid = 0.5 * (lo + hi)
-        uv, z = project(points, K, orbit_pose(target, elevation_deg, azimuth_deg, mid))
+        uv, z = project(points, K, orbit_pose(target, elevation_deg, azimuth_deg, mid, roll_deg))
         inside = np.all(z > NEAR_M) and np.all(
             (uv[:, 0] >= margin_px) & (uv[:, 0] <= width - 1 - margin_px)
             & (uv[:, 1] >= margin_px) & (uv[:, 1] <= height - 1 - margin_px))

@@ -99,10 +99,14 @@ def _camera(placed: Placed, options: SynthOptions, rng: np.random.Generator
     target[:2] += rng.normal(0.0, 0.015, size=2)
     elevation = float(rng.uniform(*options.elevation_deg))
     azimuth = float(rng.uniform(0.0, 360.0))
+    roll = 0.0
+    if tuple(options.camera_roll_deg) != (0.0, 0.0):  # drawn only when asked for: the
+        roll = float(rng.uniform(*options.camera_roll_deg))  # level scenes keep their bytes
+        record["roll_deg"] = roll
     needed = camera.fit_distance(points, target, elevation, azimuth, K, options.width,
-                                 options.height, margin_px=0.08 * options.width)
+                                 options.height, margin_px=0.08 * options.width, roll_deg=roll)
     distance = float(np.clip(needed * rng.uniform(1.0, 1.3), *options.distance_m))
-    pose = camera.orbit_pose(target, elevation, azimuth, distance)
+    pose = camera.orbit_pose(target, elevation, azimuth, distance, roll)
     return K, pose, {"elevation_deg": elevation, "azimuth_deg": azimuth,
                      "distance_m": distance, "target": target, **record}
 

@@ -18,7 +18,7 @@ REALSENSE_PRESET: dict[str, str] = {"camera_model": "realsense", "mask_model": "
 REALSENSE_ELEVATION_DEG = (27.0, 50.0)
 """Elevation of ``camera_model=realsense``: 40-63 degrees from looking straight down."""
 REALISM_FIELDS = ("realism", "camera_model", "hfov_deg", "mask_model", "depth_model",
-                  "prior_model", "prior_pose", "depthless", "mask_shadow")
+                  "prior_model", "prior_pose", "depthless", "mask_shadow", "camera_roll_deg")
 
 
 class SynthOptions(BaseModel):
@@ -70,6 +70,10 @@ class SynthOptions(BaseModel):
                                 "is set.")
     hfov_deg: tuple[float, float] = Field((58.0, 70.0), description="Horizontal field of view "
                                           "range of camera_model=realsense, degrees.")
+    camera_roll_deg: tuple[float, float] = Field(
+        (0.0, 0.0), description="Roll of the camera about its line of sight, drawn from this "
+                                "range, degrees (a hand-held or wrist camera: the table's "
+                                "horizon is not the image's x axis). 0,0: level, as before.")
     mask_model: Literal["exact", "segmenter"] = Field(
         "exact", description="segmenter: masks bleed, get holes, an object is split into two "
                              "ids, a sliver behind an occluder gets its own id (gt/realism/).")
@@ -168,6 +172,8 @@ class SynthOptions(BaseModel):
             (0 <= self.prior_fraction <= 1, "prior_fraction must be within 0..1"),
             (20 <= self.hfov_deg[0] <= self.hfov_deg[1] <= 120,
              "hfov_deg must be an increasing range within 20..120"),
+            (-180 <= self.camera_roll_deg[0] <= self.camera_roll_deg[1] <= 180,
+             "camera_roll_deg must be an increasing range within -180..180"),
             (0 < self.friction_range[0] <= self.friction_range[1],
              "friction_range must be an increasing positive range"),
             (self.support_friction > 0, "support_friction must be positive"),
