@@ -195,13 +195,17 @@ BELOW_SUPPORT_M = 0.5e-3
 """A piece reaching further below the table plane than this is cut at the plane."""
 
 
-VISUAL_PENETRATION_M = 3.0e-3
+VISUAL_PENETRATION_M = 5.0e-3
 """Visual meshes interpenetrating deeper than this are a real overlap, not the pieces'
 overshoot: geomopt keeps init's poses where their overlaps are at most 3 mm
 (r2s.geomopt.optimise.SMALL_PENETRATION_M), so an overlap it accepts is cut here, not
-pushed apart by the pieces' larger overlap (1.5 mm before 2026-11-29: on the realistic
-scene_05 a 1.6 mm visual overlap of two clamps let depenetration push one 10.9 mm;
-docs/completion.md)."""
+pushed apart by the pieces' larger overlap. geomopt reads an overlap from its SDF grids at
+surface samples, which reads less than the exact distance used here: on the tenth fresh
+set's scene_01 it accepted a pair it read at 2.0 mm at most that reads 3.5 mm here, and
+the push moved the object 15.9 mm (docs/realistic.md, "A visual overlap a little over
+3 mm"). Hence 5 mm. History: 1.5 mm before 2026-11-29 (on the realistic scene_05 a 1.6 mm
+visual overlap of two clamps let depenetration push one 10.9 mm; docs/completion.md), 3 mm
+until 2026-12-07."""
 
 VISUAL_SAMPLES = 3000
 """Surface samples of a mesh for the visual penetration test."""
