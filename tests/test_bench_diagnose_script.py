@@ -4,7 +4,6 @@ pixel at x_d shows the ideal image at the x with x + offset(x) = x_d."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -12,18 +11,13 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from helpers_scripts import load_script
 from r2s.geometry.lens import decentering_offset
 from r2s.synth.files import depth_png, write_png
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "bench_diagnose.py"
-
-
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location("bench_diagnose_under_test", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("bench_diagnose")
 
 
 def test_a_factor_scales_the_deviation_from_the_neutral_value(bench):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -10,18 +9,14 @@ import pytest
 import trimesh
 
 from helpers_init import SynthObject, default_camera, pose, write_input_scene
+from helpers_scripts import load_script
 from r2s.geometry.camera import backproject
 from r2s.io.input_scene import load_input
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "roll_camera.py"
 
 
 @pytest.fixture(scope="module")
 def roll():
-    spec = importlib.util.spec_from_file_location("roll_camera_under_test", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("roll_camera")
 
 
 def _points_by_id(scene: Path) -> dict[int, np.ndarray]:
