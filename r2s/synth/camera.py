@@ -42,8 +42,9 @@ def orbit_pose(target: np.ndarray, elevation_deg: float, azimuth_deg: float,
     """world_from_camera of a camera on a sphere around ``target`` looking at it.
 
     ``elevation_deg`` is the angle of the line of sight below the horizontal; ``roll_deg``
-    turns the camera about its line of sight (positive: the image's content turns
-    clockwise, x towards y); 0 keeps the image's x axis level.
+    turns the camera about its line of sight (positive: its x axis towards its y axis,
+    clockwise as seen from behind it, so the scene turns counter-clockwise in the image);
+    0 keeps the image's x axis level.
     """
     el, az = np.radians(elevation_deg), np.radians(azimuth_deg)
     offset = distance_m * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az),
