@@ -383,7 +383,8 @@ def make_scene(root: Path, case: str, seed: int, count: int, size: tuple[int, in
                synth_set: dict[str, str] | None = None) -> Path:
     import shutil
 
-    from r2s.synth.generate import SynthOptions, synthesize
+    from r2s.synth.generate import synthesize
+    from r2s.synth.options import options_from_command_line
 
     from r2s.errors import R2SError
 
@@ -398,10 +399,11 @@ def make_scene(root: Path, case: str, seed: int, count: int, size: tuple[int, in
             shutil.rmtree(scene)
         t0 = time.perf_counter()
         n = count if count > 0 else SCENE_COUNTS[seed % len(SCENE_COUNTS)]
-        extra = {"objects": "ycb", **(synth_set or {})}
-        synthesize(scene, SynthOptions(count=n, seed=1000 * (k + 1) + seed,
-                                       effects=effects, width=size[0], height=size[1],
-                                       **extra))
+        # --synth-set as `r2s synth --set` takes it (a range as LO,HI)
+        options = options_from_command_line(
+            {"count": n, "seed": 1000 * (k + 1) + seed, "effects": effects, "width": size[0],
+             "height": size[1]}, {"objects": "ycb", **(synth_set or {})})
+        synthesize(scene, options)
         if base_case(case) in SCRIPT_INJECT:
             SCRIPT_INJECT[base_case(case)](scene)
         print(f"synth {scene.name} (seed {1000 * (k + 1) + seed}): "
