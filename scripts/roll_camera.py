@@ -58,6 +58,8 @@ def roll_scene(src: Path, dst: Path, turns: int) -> None:
     """Write the rolled copy of scene ``src`` to ``dst`` (which must not exist)."""
     if dst.exists():
         raise SystemExit(f"{dst} exists: give a new folder")
+    if not (src / "input" / "camera.json").is_file():
+        raise SystemExit(f"{src / 'input' / 'camera.json'}: not found (SRC must be a scene)")
     shutil.copytree(src / "input", dst / "input")
     if (src / "gt").is_dir():
         shutil.copytree(src / "gt", dst / "gt")

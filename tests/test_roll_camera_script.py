@@ -57,3 +57,10 @@ def test_an_existing_destination_is_refused(tmp_path, roll):
     (tmp_path / "dst").mkdir()
     with pytest.raises(SystemExit, match="exists"):
         roll.roll_scene(tmp_path / "src", tmp_path / "dst", 1)
+
+
+def test_a_folder_that_is_not_a_scene_is_refused_in_one_line(tmp_path, roll):
+    (tmp_path / "src").mkdir()
+    with pytest.raises(SystemExit, match="camera.json: not found") as info:
+        roll.roll_scene(tmp_path / "src", tmp_path / "dst", 1)
+    assert "\n" not in str(info.value) and not (tmp_path / "dst").exists()
