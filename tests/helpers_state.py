@@ -51,6 +51,7 @@ class StateObj:
     com_in_object: Optional[Sequence[float]] = None
     mass_kg: Optional[float] = 0.2
     friction: Optional[float] = 0.6
+    source: str = "prior"
 
 
 def box(id: int, extents: Sequence[float], centre: Sequence[float],
@@ -74,7 +75,8 @@ def write_init_state(scene: Path, objects: Sequence[StateObj], support_point=(0,
             id=o.id, label=o.label, mesh=f"meshes/{o.id}.glb",
             world_from_object=np.asarray(o.world_from_object, dtype=float).tolist(),
             mass_kg=o.mass_kg, friction=o.friction,
-            com_in_object=None if o.com_in_object is None else list(o.com_in_object)))
+            com_in_object=None if o.com_in_object is None else list(o.com_in_object),
+            source=o.source))
     write_state(stage_dir, SceneState(
         stage=stage, gravity=list(gravity),
         support=SupportPlane(point=list(support_point), normal=list(support_normal)),

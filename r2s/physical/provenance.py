@@ -6,7 +6,8 @@ Per object::
       "mass":     {"source": "user"} | {"source": "user_density", "density_kg_m3": ..}
                   | {"source": "density_table", "category": "box", "density_kg_m3": ..,
                      "ref": ".."} | {"source": "default_density", "density_kg_m3": ..}
-                  | {"source": "gt"},
+                  | {"source": "open_container", "outside_area_cm2": .., "areal_density_kg_m2":
+                     .., "solid": {the density's record}, ...} | {"source": "gt"},
       "friction": {"source": "user" | "default" | "optimised" | "at_bound" | "fitted_push"
                    | "gt", "value": .., ...},
       "com":      {"source": "mesh_centroid" | "repaired" | "fitted_push" | "gt",
@@ -21,9 +22,13 @@ from typing import Optional
 
 import numpy as np
 
+from r2s.geometry.open_container import open_container
 from r2s.io.input_scene import ObjectEntry, load_objects
 from r2s.io.paths import ScenePaths
 from r2s.physical.density_table import DEFAULT_DENSITY_KG_M3, density_for_label
+
+FORCED_REF = "stage option density_kg_m3"
+"""The ``ref`` of a mass whose density the stage option forced."""
 
 COM_SHIFT_TOL_M = 1e-4
 """A COM closer than this to the uniform-density centroid counts as the centroid."""
@@ -49,9 +54,33 @@ def nominal_mass(label: str, volume_m3: float, user: Optional[ObjectEntry] = Non
     if density_kg_m3 is not None:
         rho = float(density_kg_m3)
         return rho * volume_m3, {"source": "default_density", "density_kg_m3": rho,
-                                 "ref": "stage option density_kg_m3"}
+                                 "ref": FORCED_REF}
     choice = density_for_label(label, DEFAULT_DENSITY_KG_M3)
     return choice.density_kg_m3 * volume_m3, choice.provenance()
+
+
+TABLE_OR_DEFAULT = ("density_table", "default_density")
+"""Mass provenances from the label's density or the default, not from the user or a forced
+density (which reads ``default_density`` too, with ``ref`` :data:`FORCED_REF`): the ones a
+container's walls replace."""
+
+
+def container_mass(mesh, nominal_kg: float, provenance: dict) -> tuple[float, dict]:
+    """(mass kg, provenance) of a completed shape (object frame, z up) whose mass
+    ``nominal_kg`` came from a density (``provenance`` from :func:`nominal_mass`): the walls'
+    mass when it is an open container (:mod:`r2s.geometry.open_container`; the completion
+    is solid under the dip it saw, and volume x density weighs the space the container
+    holds) where it is less than ``nominal_kg``. A user's mass or density, a density forced
+    by a stage option, and a shape that is no container keep ``nominal_kg`` and
+    ``provenance``."""
+    if provenance.get("source") not in TABLE_OR_DEFAULT or provenance.get("ref") == FORCED_REF:
+        return nominal_kg, provenance
+    found = open_container(mesh)
+    if found is None or found.walls_mass_kg() >= nominal_kg:
+        return nominal_kg, provenance
+    return found.walls_mass_kg(), {"source": "open_container", **found.as_dict(),
+                                   "solid_mass_kg": round(float(nominal_kg), 4),
+                                   "solid": provenance}
 
 
 def friction_provenance(value: float, *, user: Optional[float] = None,

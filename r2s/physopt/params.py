@@ -14,7 +14,7 @@ import numpy as np
 
 from r2s.geometry.mass_properties import mass_properties
 from r2s.io.state import SceneState
-from r2s.physical.provenance import nominal_mass
+from r2s.physical.provenance import container_mass, nominal_mass
 
 INNER_BOX_MARGIN = 0.3
 """The COM is kept inside the central box of the shape's bounding box that leaves this
@@ -78,12 +78,15 @@ def initial_params(state: SceneState, meshes: dict, pieces: dict,
     clipped to ``mass_bounds`` times the nominal mass. The nominal mass is the user's
     (``users``: input/objects.json entries by id), else volume x the user's density, else
     ``density_kg_m3``, else the label's density (:mod:`r2s.physical.density_table`); a
-    user's mass is not bounded around, it is kept."""
+    user's mass is not bounded around, it is kept. A completed shape that is an open
+    container weighs its walls instead (:func:`r2s.physical.provenance.container_mass`)."""
     params: Params = {}
     for obj in state.objects:
         user = (users or {}).get(obj.id)
         volume = mass_properties(meshes[obj.id], pieces[obj.id], mass_kg=1.0).volume_m3
         nominal_kg, mass_prov = nominal_mass(obj.label, volume, user, density_kg_m3)
+        if obj.source != "prior":
+            nominal_kg, mass_prov = container_mass(meshes[obj.id], nominal_kg, mass_prov)
         nominal = mass_properties(meshes[obj.id], pieces[obj.id], mass_kg=nominal_kg)
         lo, hi = (1.0, 1.0) if mass_prov["source"] == "user" else mass_bounds
         mass = obj.mass_kg if obj.mass_kg is not None else nominal.mass_kg

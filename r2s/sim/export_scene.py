@@ -26,7 +26,7 @@ from r2s.io.mesh_io import load_mesh, same_triangles, welded
 from r2s.io.paths import ScenePaths
 from r2s.io.pieces_file import read_pieces
 from r2s.io.scene_json import read_gt_scene
-from r2s.physical.provenance import resolve_physics
+from r2s.physical.provenance import container_mass, resolve_physics
 
 
 class BodyParams(BaseModel):
@@ -121,6 +121,9 @@ def build_and_write(out_dir: Path, gravity: list, support: dict, items: list[Obj
         mass, friction, com, provenance = resolve_physics(
             record, unit.volume_m3, unit.com_in_object, (users or {}).get(item.id),
             params.density_kg_m3, params.default_friction)
+        if item.mass_kg is None and item.extra.get("source", "prior") != "prior":
+            # no stage weighed this completion (physopt skipped): as physopt would
+            mass, provenance["mass"] = container_mass(geom, mass, provenance["mass"])
         # An estimated COM (non-uniform density) keeps the uniform body's inertia: the
         # inertia of a non-uniform body is not observable from one image.
         bodies.append(ExportBody(
