@@ -143,9 +143,9 @@ def test_walls_heavier_than_the_solid_leave_the_solid_and_its_record():
     assert found is not None
     solid_kg = 600.0 * float(cup.volume)
     assert found.walls_mass_kg() > 0.5 * solid_kg
-    mass, prov = container_mass(cup, 0.5 * solid_kg, {"source": "default_density"})
+    mass, prov = container_mass(lambda: found, 0.5 * solid_kg, {"source": "default_density"})
     assert mass == pytest.approx(0.5 * solid_kg)
     assert prov == {"source": "default_density"}
-    mass, prov = container_mass(cup, 10 * solid_kg, {"source": "default_density"})
+    mass, prov = container_mass(lambda: found, 10 * solid_kg, {"source": "default_density"})
     assert mass == pytest.approx(found.walls_mass_kg())
     assert prov["source"] == "open_container"

@@ -22,7 +22,6 @@ from typing import Optional
 
 import numpy as np
 
-from r2s.geometry.open_container import open_container
 from r2s.io.input_scene import ObjectEntry, load_objects
 from r2s.io.paths import ScenePaths
 from r2s.physical.density_table import DEFAULT_DENSITY_KG_M3, density_for_label
@@ -65,17 +64,20 @@ density (which reads ``default_density`` too, with ``ref`` :data:`FORCED_REF`): 
 container's walls replace."""
 
 
-def container_mass(mesh, nominal_kg: float, provenance: dict) -> tuple[float, dict]:
-    """(mass kg, provenance) of a completed shape (object frame, z up) whose mass
-    ``nominal_kg`` came from a density (``provenance`` from :func:`nominal_mass`): the walls'
-    mass when it is an open container (:mod:`r2s.geometry.open_container`; the completion
-    is solid under the dip it saw, and volume x density weighs the space the container
-    holds) where it is less than ``nominal_kg``. A user's mass or density, a density forced
-    by a stage option, and a shape that is no container keep ``nominal_kg`` and
-    ``provenance``."""
+def container_mass(find_container, nominal_kg: float, provenance: dict
+                   ) -> tuple[float, dict]:
+    """(mass kg, provenance) of a completed shape whose mass ``nominal_kg`` came from a
+    density (``provenance`` from :func:`nominal_mass`): the walls' mass when the shape is an
+    open container (the completion is solid under the dip it saw, and volume x density
+    weighs the space the container holds) and they weigh less than ``nominal_kg``.
+    ``find_container()`` gives the shape's
+    :class:`r2s.geometry.open_container.OpenContainer` or None; it is called only when the
+    mass came from the label's density or the default. A user's mass or density, a
+    density forced by a stage option, and a shape that is no container keep
+    ``nominal_kg`` and ``provenance``."""
     if provenance.get("source") not in TABLE_OR_DEFAULT or provenance.get("ref") == FORCED_REF:
         return nominal_kg, provenance
-    found = open_container(mesh)
+    found = find_container()
     if found is None or found.walls_mass_kg() >= nominal_kg:
         return nominal_kg, provenance
     return found.walls_mass_kg(), {"source": "open_container", **found.as_dict(),

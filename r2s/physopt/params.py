@@ -8,11 +8,13 @@ A round of physopt never edits an object's parameters in place: it builds the ne
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Iterable, Optional
 
 import numpy as np
 
 from r2s.geometry.mass_properties import mass_properties
+from r2s.geometry.open_container import open_container
 from r2s.io.state import SceneState
 from r2s.physical.provenance import container_mass, nominal_mass
 
@@ -86,7 +88,8 @@ def initial_params(state: SceneState, meshes: dict, pieces: dict,
         volume = mass_properties(meshes[obj.id], pieces[obj.id], mass_kg=1.0).volume_m3
         nominal_kg, mass_prov = nominal_mass(obj.label, volume, user, density_kg_m3)
         if obj.source != "prior":
-            nominal_kg, mass_prov = container_mass(meshes[obj.id], nominal_kg, mass_prov)
+            nominal_kg, mass_prov = container_mass(partial(open_container, meshes[obj.id]),
+                                                   nominal_kg, mass_prov)
         nominal = mass_properties(meshes[obj.id], pieces[obj.id], mass_kg=nominal_kg)
         lo, hi = (1.0, 1.0) if mass_prov["source"] == "user" else mass_bounds
         mass = obj.mass_kg if obj.mass_kg is not None else nominal.mass_kg

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import shutil
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any, Optional
 
@@ -21,6 +22,7 @@ from r2s.console import ProgressFn, silent_progress
 from r2s.geometry.convex_cache import cached_convex_decomposition
 from r2s.geometry.convex_params import DEFAULT_CONVEX, ConvexMethod, ConvexParams
 from r2s.geometry.mass_properties import mass_properties
+from r2s.geometry.open_container import open_container
 from r2s.io.export_writer import ExportBody, write_export
 from r2s.io.mesh_io import load_mesh, same_triangles, welded
 from r2s.io.paths import ScenePaths
@@ -123,7 +125,8 @@ def build_and_write(out_dir: Path, gravity: list, support: dict, items: list[Obj
             params.density_kg_m3, params.default_friction)
         if item.mass_kg is None and item.extra.get("source", "prior") != "prior":
             # no stage weighed this completion (physopt skipped): as physopt would
-            mass, provenance["mass"] = container_mass(geom, mass, provenance["mass"])
+            mass, provenance["mass"] = container_mass(partial(open_container, geom), mass,
+                                                      provenance["mass"])
         # An estimated COM (non-uniform density) keeps the uniform body's inertia: the
         # inertia of a non-uniform body is not observable from one image.
         bodies.append(ExportBody(
