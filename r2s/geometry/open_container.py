@@ -1,4 +1,4 @@
-"""An open container among completed shapes, and the volume its walls hold.
+"""An open container among completed shapes, and what its walls weigh.
 
 A completion without a prior is a height field extruded down to the support
 (:mod:`r2s.geometry.completion`). A cup, mug or bowl seen from above keeps the dip the
