@@ -92,11 +92,12 @@ class OpenContainer:
                 "areal_density_kg_m2": AREAL_DENSITY_KG_M2}
 
 
-def top_height_map(mesh: trimesh.Trimesh, cell_m: float = CELL_M
+def top_height_map(mesh: trimesh.Trimesh, cell_m: float = CELL_M, scene=None
                    ) -> tuple[np.ndarray, np.ndarray, float]:
     """(top, inside, bottom_z): per cell of a grid over the mesh's x, y bounds, the height
     of its first surface seen from above (NaN where a vertical ray misses it), whether the
-    ray hits it, and the mesh's lowest z."""
+    ray hits it, and the mesh's lowest z. ``scene``: the mesh's raycasting scene when the
+    caller has one."""
     lo, hi = mesh.bounds
     nx = max(1, int(np.ceil((hi[0] - lo[0]) / cell_m)))
     ny = max(1, int(np.ceil((hi[1] - lo[1]) / cell_m)))
@@ -106,7 +107,8 @@ def top_height_map(mesh: trimesh.Trimesh, cell_m: float = CELL_M
     above = hi[2] + 0.01
     origins = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, above)], axis=1)
     down = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
-    dist = first_hit_distance(raycasting_scene(mesh.vertices, mesh.faces), origins, down)
+    scene = scene if scene is not None else raycasting_scene(mesh.vertices, mesh.faces)
+    dist = first_hit_distance(scene, origins, down)
     inside = np.isfinite(dist).reshape(ny, nx)
     top = np.where(inside, above - dist.reshape(ny, nx), np.nan)
     return top, inside, float(lo[2])
@@ -134,7 +136,8 @@ def open_container(mesh: trimesh.Trimesh, cell_m: float = CELL_M) -> Optional[Op
     basin deep and wide enough (module docstring)."""
     if len(mesh.faces) == 0:
         return None
-    top, inside, bottom = top_height_map(mesh, cell_m)
+    scene = raycasting_scene(mesh.vertices, mesh.faces)
+    top, inside, bottom = top_height_map(mesh, cell_m, scene)
     if inside.sum() < 9:
         return None
     filled = filled_top(top, inside)
@@ -148,20 +151,20 @@ def open_container(mesh: trimesh.Trimesh, cell_m: float = CELL_M) -> Optional[Op
         return None
     return OpenContainer(depth_m=depth, basin_area_m2=float(basin.sum()) * cell_area,
                          footprint_area_m2=float(inside.sum()) * cell_area,
-                         shell_area_m2=outside_area_m2(mesh),
+                         shell_area_m2=outside_area_m2(mesh, scene),
                          solid_volume_m3=float(abs(mesh.volume)))
 
 
-def outside_area_m2(mesh: trimesh.Trimesh) -> float:
+def outside_area_m2(mesh: trimesh.Trimesh, scene=None) -> float:
     """Area of the faces a container's walls cover on the outside: those that do not face
     up (``n_z <= UP_NZ``: the opening, the rim's top and what the camera saw of the dip
     do) and from which a ray along the outward normal leaves the shape (an inner wall's
-    ray meets the wall across the container)."""
+    ray meets the wall across the container). ``scene``: as for :func:`top_height_map`."""
     normals = np.asarray(mesh.face_normals)
     candidates = np.flatnonzero(normals[:, 2] <= UP_NZ)
     if len(candidates) == 0:
         return 0.0
     origins = np.asarray(mesh.triangles_center)[candidates] + 1e-4 * normals[candidates]
-    dist = first_hit_distance(raycasting_scene(mesh.vertices, mesh.faces), origins,
-                              normals[candidates])
+    scene = scene if scene is not None else raycasting_scene(mesh.vertices, mesh.faces)
+    dist = first_hit_distance(scene, origins, normals[candidates])
     return float(np.asarray(mesh.area_faces)[candidates][~np.isfinite(dist)].sum())
