@@ -32,7 +32,7 @@ from r2s.geometry.camera import transform_points
 from r2s.geometry.completion import centre_over
 from r2s.geometry.hidden_carrier import HiddenTop
 from r2s.geometry.plane import world_from_plane
-from r2s.geometry.sdf import raycasting_scene
+from r2s.geometry.sdf import raycasting_scene, vertical_heights
 
 CELL_M = 0.002
 """Spacing of the grid of vertical rays under the carried object."""
@@ -51,16 +51,9 @@ PAST_M = 0.01
 def _heights(mesh_plane: trimesh.Trimesh, xy: np.ndarray, from_above: bool) -> np.ndarray:
     """(M,) height of the first surface of ``mesh_plane`` (plane frame) met by vertical
     rays at ``xy`` (M, 2), from above (its top) or from below (its base); NaN where none."""
-    import open3d as o3d  # heavy import, only where needed
-
     scene = raycasting_scene(np.asarray(mesh_plane.vertices), np.asarray(mesh_plane.faces))
     lo, hi = mesh_plane.bounds[:, 2]
-    start = hi + 1.0 if from_above else lo - 1.0
-    rays = np.zeros((len(xy), 6), dtype=np.float32)
-    rays[:, :2], rays[:, 2], rays[:, 5] = xy, start, (-1.0 if from_above else 1.0)
-    t_hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
-    z = start - t_hit if from_above else start + t_hit
-    return np.where(np.isfinite(t_hit), z, np.nan)
+    return vertical_heights(scene, xy, hi + 1.0 if from_above else lo - 1.0, from_above)
 
 
 def support_extension(carried_world: trimesh.Trimesh,

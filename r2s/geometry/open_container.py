@@ -34,7 +34,7 @@ import trimesh
 from scipy import ndimage
 from skimage.morphology import reconstruction
 
-from r2s.geometry.sdf import first_hit_distance, raycasting_scene
+from r2s.geometry.sdf import first_hit_distance, raycasting_scene, vertical_heights
 
 AREAL_DENSITY_KG_M2 = 4.35
 """Mass of a container's walls per square metre of its outside (the YCB median, above):
@@ -104,14 +104,10 @@ def top_height_map(mesh: trimesh.Trimesh, cell_m: float = CELL_M, scene=None
     xs = lo[0] + (np.arange(nx) + 0.5) * (hi[0] - lo[0]) / nx
     ys = lo[1] + (np.arange(ny) + 0.5) * (hi[1] - lo[1]) / ny
     gx, gy = np.meshgrid(xs, ys)
-    above = hi[2] + 0.01
-    origins = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, above)], axis=1)
-    down = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
     scene = scene if scene is not None else raycasting_scene(mesh.vertices, mesh.faces)
-    dist = first_hit_distance(scene, origins, down)
-    inside = np.isfinite(dist).reshape(ny, nx)
-    top = np.where(inside, above - dist.reshape(ny, nx), np.nan)
-    return top, inside, float(lo[2])
+    top = vertical_heights(scene, np.column_stack([gx.ravel(), gy.ravel()]),
+                           hi[2] + 0.01).reshape(ny, nx)
+    return top, np.isfinite(top), float(lo[2])
 
 
 def filled_top(top: np.ndarray, inside: np.ndarray) -> np.ndarray:

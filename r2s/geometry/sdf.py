@@ -157,6 +157,19 @@ def first_hit_distance(scene, origins: np.ndarray, directions: np.ndarray) -> np
     return scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy().astype(np.float64)
 
 
+def vertical_heights(scene, xy: np.ndarray, start_z: float, from_above: bool = True
+                     ) -> np.ndarray:
+    """(M,) z of the first triangle of the scene met by vertical rays at ``xy`` (M, 2),
+    started at height ``start_z`` and going down (``from_above``: a top) or up (a base);
+    NaN where a ray meets none. The scene's frame has z up."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    origins = np.column_stack([xy, np.full(len(xy), float(start_z))])
+    direction = np.array([0.0, 0.0, -1.0 if from_above else 1.0])
+    t_hit = first_hit_distance(scene, origins, np.tile(direction, (len(xy), 1)))
+    z = start_z - t_hit if from_above else start_z + t_hit
+    return np.where(np.isfinite(t_hit), z, np.nan)
+
+
 def signed_distances(scene, points: np.ndarray) -> np.ndarray:
     """(M,) signed distance (m) from (M, 3) points to the scene's triangles, negative
     inside (closed meshes), as float64."""
