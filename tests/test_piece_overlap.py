@@ -132,3 +132,20 @@ def test_a_piece_standing_on_the_table_is_not_cut_from_below():
     poses[2] = _pose([0.05, 0.0, 0.023])
     out, report = shave_overlaps(pieces, meshes, poses, order=[1, 2], support=support)
     assert out[2][0] is not pieces[2][0] and set(report) == {2}
+
+
+def test_a_shallow_geometric_overlap_is_found_with_bullets_margins():
+    # two 5 cm cubes side by side, 1 mm into each other along x only: Bullet inflates each
+    # hull by its 1 mm margin, so it reads 1 + 2 = 3 mm, over the 1.5 mm tolerance, though
+    # the boxes overlap by less than that along x
+    pieces = {1: [_box([0.05, 0.05, 0.05])], 2: [_box([0.05, 0.05, 0.05])]}
+    poses = {1: _pose([0.0, 0.0, 0.025]), 2: _pose([0.049, 0.0, 0.025])}
+    overlaps = piece_overlaps(pieces, poses)
+    assert len(overlaps) == 1
+    assert overlaps[0].depth_m == pytest.approx(0.001 + 2e-3, abs=2e-4)
+    out, report = shave_overlaps(pieces, {1: pieces[1][0], 2: pieces[2][0]}, poses,
+                                 order=[1, 2])
+    # the later cube is cut 1 mm past the earlier one's face, and reads no overlap after
+    assert out[2][0].vertices[:, 0].min() + poses[2][0, 3] == pytest.approx(
+        0.025 + CUT_CLEARANCE_M, abs=1e-6)
+    assert set(report) == {2} and not piece_overlaps(out, poses)

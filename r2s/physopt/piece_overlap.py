@@ -30,7 +30,7 @@ import trimesh
 from r2s.geometry.camera import transform_points
 from r2s.geometry.collision_trim import capped_hull, inside_depth_m
 from r2s.geometry.sdf import raycasting_scene, winding_number
-from r2s.physopt.pybullet_world import obj_file_bytes
+from r2s.physopt.pybullet_world import BULLET_MARGIN_M, obj_file_bytes
 from r2s.sim.pybullet_bodies import connect_direct, quat_xyzw_from_matrix
 
 PieceKey = tuple[int, int]
@@ -55,7 +55,15 @@ def piece_overlaps(pieces: dict[int, list[trimesh.Trimesh]], poses: dict[int, np
                    min_depth_m: float = OVERLAP_TOLERANCE_M) -> list[Overlap]:
     """Every pair of pieces of two different objects that overlaps by more than
     ``min_depth_m`` as Bullet measures it (its depth includes its collision margin),
-    deepest first."""
+    deepest first.
+
+    Bullet inflates every convex piece by :data:`BULLET_MARGIN_M`, so it reports two
+    pieces as overlapping by their geometric overlap plus twice that (touching hulls: 2
+    mm). The bounding boxes that pick the pairs to measure are geometric, so they are
+    compared with the same allowance: a pair whose boxes overlap by only 1 mm along one
+    axis can read 3 mm (measured on a drill and a cup leaning on it: 2.88 mm, boxes 0.88 mm
+    along one axis; a box test at ``min_depth_m`` skipped it, and the pair's push slid both
+    8 mm in one body order)."""
     client = connect_direct()
     tmp = tempfile.TemporaryDirectory(prefix="r2s-overlap-")
     try:
@@ -65,7 +73,8 @@ def piece_overlaps(pieces: dict[int, list[trimesh.Trimesh]], poses: dict[int, np
         out = []
         for n, ka in enumerate(keys):
             for kb in keys[n + 1:]:
-                if ka[0] == kb[0] or not _boxes_meet(boxes[ka], boxes[kb], min_depth_m):
+                if ka[0] == kb[0] or not _boxes_meet(boxes[ka], boxes[kb],
+                                                     min_depth_m - 2 * BULLET_MARGIN_M):
                     continue
                 pts = pb.getClosestPoints(bodies[ka], bodies[kb], 0.0, physicsClientId=client)
                 if not pts:
