@@ -37,7 +37,7 @@ from r2s.physopt.hierarchy import (lowest_points_m, order_root_to_leaves,  # noq
 from r2s.physopt.params import initial_params  # noqa: E402
 from r2s.physopt.piece_overlap import shave_overlaps  # noqa: E402
 from r2s.physopt.repair import check, world_factory  # noqa: E402
-from r2s.stages.physopt import Options  # noqa: E402
+from r2s.stages.physopt import Options, trimmed_objects  # noqa: E402
 
 SAMPLED_STEPS = (1, 60, 240, 480, 1200)
 
@@ -79,10 +79,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as cache:
         pieces = {i: cached_convex_decomposition(meshes[i], Path(cache), **convex.as_kwargs())
                   for i in ids}
-    # physopt's default (trim_collision=completed): completions, and priors dented at init
-    only = {o.id for o in state.objects if o.source in ("completed", "silhouette")
-            or int((getattr(o, "hidden_overlap", None) or {}).get("moved_vertices", 0)) > 0}
-    pieces, _ = trim_scene_pieces(pieces, meshes, poses, only=only,
+    pieces, _ = trim_scene_pieces(pieces, meshes, poses, only=trimmed_objects(state),
                                   max_split_depth=opt.trim_split_levels)
     support = (np.asarray(state.support.point), np.asarray(state.support.normal))
     pieces, _ = shave_overlaps(pieces, meshes, poses, order, support)

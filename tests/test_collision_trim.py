@@ -19,6 +19,7 @@ from r2s.geometry.collision_trim import (capped_hull, inside_depth_m, surface_po
 from r2s.geometry.convex_params import ConvexParams
 from r2s.io.mesh_io import save_mesh
 from r2s.io.pieces_file import read_pieces, write_pieces
+from r2s.physopt.piece_overlap import CUT_CLEARANCE_M
 from r2s.sim.export_scene import BodyParams, ObjectItem, build_and_write
 
 TRANSLATE = trimesh.transformations.translation_matrix
@@ -117,7 +118,9 @@ def test_trim_scene_pieces_uses_each_objects_pose():
 
 def test_physopt_writes_the_pieces_it_checked(tmp_path):
     """physopt/collision/<id>.npz holds each object's pieces under the export's parameters
-    (two cubes: one piece each, the cube's volume)."""
+    (two cubes, the upper resting on the lower: one piece each, the lower cube's volume, and
+    the upper one's less the slab physopt cuts under it, r2s/physopt/piece_overlap.py: two
+    touching hulls read 2 mm in Bullet, over its 1.5 mm tolerance)."""
     from r2s.io.manifest import StageRecord, load_manifest, save_manifest
     from r2s.io.state import ObjectState, SceneState, SupportPlane, write_state
     from r2s.runner.base import run_stage
@@ -136,10 +139,11 @@ def test_physopt_writes_the_pieces_it_checked(tmp_path):
     manifest.stages["init"] = StageRecord(status="done")
     save_manifest(root / "manifest.json", manifest)
     run_stage(PHYSOPT, root, Options(use_diffsim=False))
-    for oid, edge in ((1, 0.1), (2, 0.06)):
+    for oid, edge, height in ((1, 0.1, 0.1), (2, 0.06, 0.06 - CUT_CLEARANCE_M)):
         pieces = read_pieces(root / "physopt" / "collision" / f"{oid}.npz",
                              BodyParams().convex.as_kwargs())
-        assert len(pieces) == 1 and pieces[0].volume == pytest.approx(edge ** 3, rel=1e-6)
+        assert len(pieces) == 1
+        assert pieces[0].volume == pytest.approx(edge * edge * height, rel=1e-6)
 
 
 def _item(mesh_path: Path, pieces_path: Path | None, collision_mesh: Path | None = None):

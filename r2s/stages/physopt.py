@@ -424,12 +424,17 @@ def _trimmed_pieces(ctx: StageContext, state: SceneState, meshes: dict, poses: d
     if mode == "off":
         return _Pieces(pieces, {}, {})
     ctx.progress("collision pieces against the neighbours", 0.1)
-    only = None if mode == "all" else {o.id for o in state.objects
-                                       if o.source in ("completed", "silhouette")
-                                       or _yielded_at_init(o)}
+    only = None if mode == "all" else trimmed_objects(state)
     trimmed, reports = trim_scene_pieces(pieces, meshes, poses, only=only,
                                          max_split_depth=ctx.options.trim_split_levels)
     return _Pieces(trimmed, reports, {})
+
+
+def trimmed_objects(state: SceneState) -> set[int]:
+    """Ids whose pieces ``trim_collision=completed`` (the default) trims: the completions,
+    and the priors dented at init (:func:`_yielded_at_init`)."""
+    return {o.id for o in state.objects
+            if o.source in ("completed", "silhouette") or _yielded_at_init(o)}
 
 
 def _yielded_at_init(o: ObjectState) -> bool:
