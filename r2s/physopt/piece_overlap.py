@@ -61,9 +61,9 @@ def piece_overlaps(pieces: dict[int, list[trimesh.Trimesh]], poses: dict[int, np
     pieces as overlapping by their geometric overlap plus twice that (touching hulls: 2
     mm). The bounding boxes that pick the pairs to measure are geometric, so they are
     compared with the same allowance: a pair whose boxes overlap by only 1 mm along one
-    axis can read 3 mm (measured on a drill and a cup leaning on it: 2.88 mm, boxes 0.88 mm
-    along one axis; a box test at ``min_depth_m`` skipped it, and the pair's push slid both
-    8 mm in one body order)."""
+    axis can read 3 mm (measured on a cup lying against a drill: 2.88 mm, boxes 0.88 mm
+    along one axis; a box test at ``min_depth_m`` skipped the pair, docs/
+    convex_decomposition.md)."""
     client = connect_direct()
     tmp = tempfile.TemporaryDirectory(prefix="r2s-overlap-")
     try:
